@@ -1,0 +1,58 @@
+"""Summaries of a log: frames, points and the class histogram (used by ``dsnet describe``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dsnet_core.io.semantickitti import SemanticKittiReader
+
+
+@dataclass
+class LogSummary:
+    """Counts over the sequences of a log.
+
+    Attributes:
+        frames: sequence -> number of frames.
+        points: sequence -> total points.
+        class_points: train class name -> points (labelled logs only).
+        class_instances: thing class name -> distinct instance ids (labelled logs only).
+        has_poses: sequence -> whether LiDAR poses are available.
+    """
+
+    frames: dict[str, int] = field(default_factory=dict)
+    points: dict[str, int] = field(default_factory=dict)
+    class_points: dict[str, int] = field(default_factory=dict)
+    class_instances: dict[str, int] = field(default_factory=dict)
+    has_poses: dict[str, bool] = field(default_factory=dict)
+
+
+def summarize(reader: SemanticKittiReader, sequences: list[str] | None = None) -> LogSummary:
+    """Read every frame of ``sequences`` (all by default) and count points per class."""
+    lm = reader.label_map
+    summary = LogSummary()
+    hist = np.zeros(lm.num_classes, dtype=np.int64)
+    instances: dict[int, set[int]] = {c: set() for c in lm.things}
+    for seq in sequences or reader.sequences():
+        frames = reader.frames(seq)
+        summary.frames[seq] = len(frames)
+        summary.has_poses[seq] = reader.poses(seq) is not None
+        total = 0
+        for ref in frames:
+            scan = reader.scan(ref)
+            total += scan.shape[0]
+            label = reader.labels(ref, n_points=scan.shape[0])
+            if label is None:
+                continue
+            train = lm.to_train(label & 0xFFFF)
+            hist += np.bincount(train, minlength=lm.num_classes)
+            inst = label >> 16
+            for c in lm.things:
+                ids = np.unique(inst[(train == c) & (inst > 0)])
+                instances[c].update(f"{seq}/{i}" for i in ids.tolist())  # type: ignore[misc]
+        summary.points[seq] = total
+    if hist.sum():
+        summary.class_points = {lm.class_names[c]: int(hist[c]) for c in range(lm.num_classes)}
+        summary.class_instances = {lm.class_names[c]: len(instances[c]) for c in lm.things}
+    return summary

@@ -1,0 +1,60 @@
+"""The reader protocol: every log format (SemanticKITTI, nuScenes, folders of scans, the
+synthetic generator's output) is read through this small interface."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    """One frame of a sequence.
+
+    Attributes:
+        sequence: sequence name (``"08"``).
+        frame_id: frame name, the file stem (``"000042"``); frames are paired by it.
+        index: position of the frame in its sequence (0-based, sorted by ``frame_id``).
+        scan_path: the scan file.
+        label_path: the label file, or None when the log has no labels for it.
+    """
+
+    sequence: str
+    frame_id: str
+    index: int
+    scan_path: Path
+    label_path: Path | None = None
+
+
+@runtime_checkable
+class LogReader(Protocol):
+    """Read-only access to a driving log."""
+
+    root: Path
+
+    def sequences(self) -> list[str]:
+        """Sequence names, sorted."""
+        ...
+
+    def frames(self, sequence: str) -> list[FrameRef]:
+        """The frames of a sequence, sorted by name."""
+        ...
+
+    def scan(self, frame: FrameRef) -> np.ndarray:
+        """float32 ``(N, 4)``: x, y, z (metres, sensor frame), remission."""
+        ...
+
+    def labels(self, frame: FrameRef) -> np.ndarray | None:
+        """uint32 ``(N,)`` raw semantic | instance << 16, or None without labels."""
+        ...
+
+    def pose(self, frame: FrameRef) -> np.ndarray | None:
+        """float64 ``(4, 4)`` LiDAR-frame pose (sensor → world), or None without poses."""
+        ...
+
+    def timestamp(self, frame: FrameRef) -> float | None:
+        """Seconds, or None."""
+        ...

@@ -1,0 +1,75 @@
+"""The ``dsnet`` command line. Heavy imports live inside the commands so ``--help`` is instant."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+app = typer.Typer(
+    name="dsnet",
+    help="Resumable 3D/4D LiDAR panoptic auto-labelling (DS-Net, 4D-DS-Net) and benchmark scoring.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _fail(exc: Exception) -> None:
+    typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+@app.command()
+def describe(
+    data: Path = typer.Argument(..., help="Log root in the SemanticKITTI layout (holds sequences/)."),
+    sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
+) -> None:
+    """Check every file of a log and print frames, points and the class histogram."""
+    from dsnet_core.describe import summarize
+    from dsnet_core.errors import DsnetError
+    from dsnet_core.io.semantickitti import SemanticKittiReader
+
+    try:
+        reader = SemanticKittiReader(data)
+        seqs = sequences.split(",") if sequences else None
+        summary = summarize(reader, seqs)
+    except DsnetError as exc:
+        _fail(exc)
+        return
+    _print_summary(summary)
+
+
+def _print_summary(summary) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    table = Table(title="sequences")
+    for col in ("sequence", "frames", "points", "points/frame", "poses"):
+        table.add_column(col, justify="right")
+    for seq, n in summary.frames.items():
+        pts = summary.points[seq]
+        table.add_row(
+            seq, str(n), str(pts), f"{pts / max(n, 1):.0f}", "yes" if summary.has_poses[seq] else "no"
+        )
+    console.print(table)
+    if summary.class_points:
+        total = sum(summary.class_points.values())
+        hist = Table(title="class histogram (train ids)")
+        for col in ("class", "points", "share", "instances"):
+            hist.add_column(col, justify="right")
+        for name, pts in summary.class_points.items():
+            inst = summary.class_instances.get(name)
+            hist.add_row(
+                name, str(pts), f"{100 * pts / max(total, 1):.2f}%", "" if inst is None else str(inst)
+            )
+        console.print(hist)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""One Prefect task module per stage: thin adapters store -> dsnet_core -> store."""

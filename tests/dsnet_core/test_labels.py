@@ -1,0 +1,51 @@
+import numpy as np
+import pytest
+
+from dsnet_core.errors import ConfigError
+from dsnet_core.labels import load_label_map
+
+
+def test_semantic_kitti_map_derivations():
+    lm = load_label_map("semantic-kitti")
+    assert lm.num_classes == 20
+    assert lm.things == tuple(range(1, 9))
+    assert lm.stuff == tuple(range(9, 20))
+    assert lm.class_names[1] == "car" and lm.class_names[19] == "traffic-sign"
+    assert lm.min_points == 50
+    assert lm.split["valid"] == [8]
+    # moving classes fold onto their static train id; lane marking onto road
+    assert lm.to_train(np.array([252, 254, 60, 40, 0, 52])).tolist() == [1, 6, 9, 9, 0, 0]
+    # learning_map_inv round-trips every train id
+    train = np.arange(20)
+    assert (lm.to_train(lm.to_raw(train)) == train).all()
+    assert lm.is_thing().sum() == 8
+
+
+def test_unknown_raw_id_is_rejected():
+    lm = load_label_map("semantic-kitti")
+    with pytest.raises(ValueError, match="not in the semantic-kitti label map"):
+        lm.to_train(np.array([10, 12]))
+    with pytest.raises(ValueError, match=r"\[400\]"):
+        lm.to_train(np.array([400]))
+
+
+def test_panoptic_nuscenes_map():
+    lm = load_label_map("panoptic-nuscenes")
+    assert lm.num_classes == 17
+    assert lm.things == tuple(range(1, 11)) and lm.stuff == tuple(range(11, 17))
+    assert lm.class_names[4] == "car" and lm.class_names[16] == "vegetation"
+    assert lm.to_train(np.array([17, 2, 31, 24])).tolist() == [4, 7, 0, 11]
+    assert lm.min_points == 15
+
+
+def test_custom_yaml_and_errors(tmp_path):
+    f = tmp_path / "tiny.yaml"
+    f.write_text("labels: {0: unlabeled, 5: thing}\nlearning_map: {0: 0, 5: 1}\nthings: [1]\n")
+    lm = load_label_map(f)
+    assert lm.class_names == ("unlabeled", "thing")
+    with pytest.raises(ConfigError, match="not found"):
+        load_label_map(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("labels: {0: x}\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml: missing required key 'learning_map'"):
+        load_label_map(bad)

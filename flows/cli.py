@@ -67,6 +67,12 @@ def _print_summary(summary) -> None:
         console.print(hist)
 
 
+from flows.commands import synth as _synth  # noqa: E402
+
+app.command()(_synth.synth)
+app.command()(_synth.demo)
+
+
 def main() -> None:
     app()
 

@@ -1,0 +1,202 @@
+"""The static street: ground layout (lanes, parking strips, sidewalks, lots) and the stuff on it
+(buildings, fences, vegetation, trunks, poles, traffic signs)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dsnet_core.synth import templates
+from dsnet_core.synth.primitives import BOX, Part, PrimitiveBuilder
+from dsnet_core.synth.road import OTHER_GROUND, TERRAIN, GroundLayout, Road
+
+BUILDING, FENCE, VEGETATION, TRUNK, POLE, TRAFFIC_SIGN, OTHER_OBJECT = 50, 51, 70, 71, 80, 81, 99
+SIDES = (1.0, -1.0)  # side 0 is the left (d > 0), side 1 the right
+
+
+@dataclass
+class Occupancy:
+    """Footprints already used on the ground, as circles in Frenet coordinates (s, d, radius)."""
+
+    circles: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def free(self, s: float, d: float, r: float) -> bool:
+        return all((s - cs) ** 2 + (d - cd) ** 2 >= (r + cr) ** 2 for cs, cd, cr in self.circles)
+
+    def take(self, s: float, d: float, r: float) -> bool:
+        if not self.free(s, d, r):
+            return False
+        self.circles.append((s, d, r))
+        return True
+
+
+@dataclass(frozen=True)
+class Lot:
+    side: int
+    s0: float
+    s1: float
+    kind: str  # building | park | field | paved
+
+
+@dataclass(frozen=True)
+class Street:
+    layout: GroundLayout
+    lots: list[Lot]
+    parking: list[tuple[int, float, float]]  # (side, s0, s1) parking strips
+
+
+def make_layout(rng: np.random.Generator, s_lo: float, s_hi: float) -> Street:
+    """Draw lanes, parking strips, sidewalk widths and lots over ``[s_lo, s_hi]`` (1 m bins)."""
+    lanes = int(rng.choice([1, 2], p=[0.6, 0.4]))
+    lane_w = float(rng.uniform(3.0, 3.6))
+    n = int(np.ceil(s_hi - s_lo)) + 1
+    edges = np.zeros((2, 3, n))
+    outer = np.full((2, n), TERRAIN, dtype=np.int32)
+    bins_s = s_lo + np.arange(n) + 0.5
+    lots: list[Lot] = []
+    parking: list[tuple[int, float, float]] = []
+    for side in range(2):
+        road_edge = lanes * lane_w + 0.3
+        edges[side, 0] = road_edge
+        edges[side, 1] = road_edge
+        s = s_lo
+        while s < s_hi:
+            length = rng.uniform(15.0, 70.0)
+            if rng.random() < 0.55:
+                width = rng.uniform(2.1, 2.5)
+                sel = (bins_s >= s) & (bins_s < s + length)
+                edges[side, 1, sel] = road_edge + width
+                parking.append((side, s, min(s + length, s_hi)))
+            s += length + rng.uniform(5.0, 30.0)
+        edges[side, 2] = edges[side, 1] + rng.uniform(2.5, 4.0)
+        s = s_lo
+        while s < s_hi:
+            length = rng.uniform(12.0, 45.0)
+            kind = str(rng.choice(["building", "park", "field", "paved"], p=[0.5, 0.2, 0.15, 0.15]))
+            sel = (bins_s >= s) & (bins_s < s + length)
+            outer[side, sel] = OTHER_GROUND if kind == "paved" or rng.random() < 0.3 else TERRAIN
+            lots.append(Lot(side, s, min(s + length, s_hi), kind))
+            s += length
+    return Street(GroundLayout(s_lo, 1.0, edges, outer, lanes, lane_w), lots, parking)
+
+
+class StuffPlacer:
+    """Places stuff primitives along the street (buildings, fences, vegetation, poles, signs)."""
+
+    def __init__(self, rng: np.random.Generator, road: Road, street: Street, occ: Occupancy) -> None:
+        self.rng, self.road, self.street, self.occ = rng, road, street, occ
+        self.out = PrimitiveBuilder()
+
+    def place(self, parts: list[Part], s: float, d: float, semantic: int, yaw_offset: float = 0.0) -> None:
+        x, y, h = self.road.pose_at(s, d)
+        self.out.add_parts(parts, float(x), float(y), float(h) + yaw_offset, semantic, 0)
+
+    def along(
+        self, s0: float, s1: float, d: float, width: float, height: float, semantic: int, refl: float
+    ) -> None:
+        """A wall-like box run from ``s0`` to ``s1`` at offset ``d``, split into ≤ 8 m pieces to follow
+        the curve."""
+        pieces = max(1, int(np.ceil((s1 - s0) / 8.0)))
+        step = (s1 - s0) / pieces
+        for k in range(pieces):
+            sc = s0 + (k + 0.5) * step
+            self.place(
+                [Part(BOX, (0.0, 0.0, height / 2), (step / 2 + 0.02, width / 2, height / 2), refl)],
+                sc,
+                d,
+                semantic,
+            )
+
+    def tree(self, s: float, d: float) -> None:
+        trunk, crown = templates.tree(self.rng)
+        if self.occ.take(s, d, trunk[0].half[0] + 0.3):
+            self.place(trunk, s, d, TRUNK)
+            self.place(crown, s, d, VEGETATION)
+
+    def run(self) -> PrimitiveBuilder:
+        lay = self.street.layout
+        for lot in self.street.lots:
+            getattr(self, f"_lot_{lot.kind}")(
+                lot, SIDES[lot.side], lay.edge(lot.side, 2, (lot.s0 + lot.s1) / 2)
+            )
+        for side, sign in enumerate(SIDES):
+            self._sidewalk(side, sign)
+        return self.out
+
+    def _sidewalk(self, side: int, sign: float) -> None:
+        rng, lay = self.rng, self.street.layout
+        s, s_hi = lay.s0, lay.s0 + lay.edges.shape[2] * lay.ds
+        next_sign = s + rng.uniform(5.0, 60.0)
+        trees = rng.random() < 0.5
+        while s < s_hi:
+            s += rng.uniform(22.0, 40.0)
+            curb = lay.edge(side, 1, s)
+            if self.occ.take(s, sign * (curb + 0.5), 0.4):
+                self.place(templates.streetlight(rng), s, sign * (curb + 0.5), POLE, np.pi / 2 * sign)
+            if trees:
+                for k in (1, 2):
+                    self.tree(s + k * rng.uniform(6.0, 9.0), sign * (curb + 0.9))
+            if s > next_sign:
+                next_sign = s + rng.uniform(20.0, 80.0)
+                pole, plate = templates.sign(rng)
+                d = sign * (curb + 0.35)
+                if self.occ.take(s + 3.0, d, 0.4):
+                    self.place(pole, s + 3.0, d, POLE)
+                    self.place(plate, s + 3.0, d, TRAFFIC_SIGN)
+            if rng.random() < 0.3:
+                d = sign * (lay.edge(side, 2, s) - 0.5)
+                if self.occ.take(s + 10.0, d, 0.5):
+                    box = Part(BOX, (0.0, 0.0, 0.55), (0.3, 0.3, 0.55), rng.uniform(0.1, 0.5))
+                    self.place([box], s + 10.0, d, OTHER_OBJECT)
+
+    def _lot_building(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
+        rng = self.rng
+        setback = rng.uniform(0.0, 6.0) if rng.random() < 0.6 else 0.0
+        depth, height = rng.uniform(8.0, 20.0), rng.uniform(4.0, 25.0)
+        gap = rng.uniform(0.5, 6.0)
+        length = lot.s1 - lot.s0 - gap
+        if length < 5.0:
+            return
+        sc = (lot.s0 + lot.s1) / 2
+        d = sign * (sidewalk_end + setback + depth / 2)
+        self.place(
+            [Part(BOX, (0.0, 0.0, height / 2), (length / 2, depth / 2, height / 2), rng.uniform(0.15, 0.55))],
+            sc,
+            d,
+            BUILDING,
+        )
+        if setback > 1.5:
+            dy = sign * (sidewalk_end + 0.3)
+            if rng.random() < 0.5:
+                self.along(lot.s0, lot.s1, dy, 0.05, rng.uniform(0.8, 1.8), FENCE, rng.uniform(0.2, 0.5))
+            else:
+                self.along(lot.s0, lot.s1, dy, rng.uniform(0.5, 1.0), rng.uniform(0.8, 1.6), VEGETATION, 0.45)
+
+    def _lot_park(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
+        rng = self.rng
+        for _ in range(int((lot.s1 - lot.s0) / 5.0)):
+            s, d = rng.uniform(lot.s0, lot.s1), sign * (sidewalk_end + rng.uniform(2.0, 25.0))
+            if rng.random() < 0.6:
+                self.tree(s, d)
+            elif self.occ.take(s, d, 1.0):
+                self.place(templates.bush(rng), s, d, VEGETATION, rng.uniform(0, np.pi))
+
+    def _lot_field(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
+        rng = self.rng
+        d = sign * (sidewalk_end + rng.uniform(0.5, 3.0))
+        self.along(lot.s0, lot.s1, d, 0.05, rng.uniform(1.0, 2.0), FENCE, rng.uniform(0.2, 0.5))
+        for _ in range(int((lot.s1 - lot.s0) / 10.0)):
+            self.tree(rng.uniform(lot.s0, lot.s1), sign * (abs(d) + rng.uniform(3.0, 15.0)))
+
+    def _lot_paved(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
+        rng = self.rng
+        depth, height = rng.uniform(10.0, 25.0), rng.uniform(5.0, 15.0)
+        length = lot.s1 - lot.s0 - 1.0
+        d = sign * (sidewalk_end + rng.uniform(15.0, 25.0) + depth / 2)
+        self.place(
+            [Part(BOX, (0.0, 0.0, height / 2), (length / 2, depth / 2, height / 2), rng.uniform(0.15, 0.55))],
+            (lot.s0 + lot.s1) / 2,
+            d,
+            BUILDING,
+        )

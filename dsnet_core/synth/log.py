@@ -1,0 +1,162 @@
+"""Writes synthetic driving logs in the SemanticKITTI layout (scans, labels, poses, calib, times)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dsnet_core.errors import SequenceLayoutError
+from dsnet_core.io.semantickitti import write_frame, write_sequence_meta
+from dsnet_core.synth.config import SynthConfig
+from dsnet_core.synth.render import Renderer
+from dsnet_core.synth.scene import Scene, build_scene
+from dsnet_core.synth.sensor import get_sensor
+
+log = logging.getLogger(__name__)
+
+# Velodyne→camera transform of KITTI odometry sequence 00 (re-orthonormalised).
+_KITTI_TR = np.array(
+    [
+        [4.276802385584e-04, -9.999672484946e-01, -8.084491683471e-03, -1.198459927713e-02],
+        [-7.210626507497e-03, 8.081198471645e-03, -9.999413164504e-01, -5.403984729748e-02],
+        [9.999738645903e-01, 4.859485810390e-04, -7.206933692422e-03, -2.921968648686e-01],
+    ]
+)
+
+
+def kitti_tr() -> np.ndarray:
+    """A realistic velodyne→camera ``Tr``, float64 ``(4, 4)``, exactly rigid."""
+    u, _, vt = np.linalg.svd(_KITTI_TR[:, :3])
+    tr = np.eye(4)
+    tr[:3, :3] = u @ vt
+    tr[:3, 3] = _KITTI_TR[:, 3]
+    return tr
+
+
+@dataclass(frozen=True)
+class SequencePlan:
+    """Everything needed to render a sequence.
+
+    Attributes:
+        scene: the world.
+        poses: ``(F, 4, 4) float64`` sensor → scene-world poses.
+        times: ``(F,) float64`` seconds from the first frame.
+    """
+
+    scene: Scene
+    poses: np.ndarray
+    times: np.ndarray
+
+
+def sequence_seed(seed: int, index: int) -> np.random.SeedSequence:
+    """The seed of sequence ``index`` (its number, e.g. 3 for "03") of a log made with ``seed``."""
+    return np.random.SeedSequence([int(seed), int(index)])
+
+
+def plan_sequence(seed: int, index: int, frames: int, config: SynthConfig | None = None) -> SequencePlan:
+    """Build the world and the ego drive of sequence ``index`` (deterministic in ``seed, index``)."""
+    config = config or SynthConfig()
+    spec = get_sensor(config.sensor)
+    rng = np.random.default_rng(sequence_seed(seed, index).spawn(1)[0])
+    times = np.arange(frames, dtype=np.float64) * config.frame_period
+    scene = build_scene(rng, float(times[-1]) if frames else 0.0, config)
+    return SequencePlan(scene, _ego_poses(scene, times, spec.height, config.jitter_deg, rng), times)
+
+
+def _ego_poses(scene: Scene, times: np.ndarray, height: float, jitter_deg: float, rng) -> np.ndarray:
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    sway = 0.15 * np.sin(2 * np.pi * times / 7.0 + phase[0])
+    x, y, yaw = scene.road.pose_at(scene.ego_speed * times, scene.ego_d + sway)
+    amp = np.deg2rad(jitter_deg)
+    pitch = amp * np.sin(2 * np.pi * times / 1.3 + phase[1])
+    roll = amp * np.sin(2 * np.pi * times / 1.9 + phase[2])
+    cy, sy, cp, sp, cr, sr = (
+        np.cos(yaw),
+        np.sin(yaw),
+        np.cos(pitch),
+        np.sin(pitch),
+        np.cos(roll),
+        np.sin(roll),
+    )
+    poses = np.zeros((times.size, 4, 4))
+    poses[:, 0] = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr, x], axis=1)
+    poses[:, 1] = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr, y], axis=1)
+    poses[:, 2] = np.stack([-sp, cp * sr, cp * cr, np.full_like(x, height)], axis=1)
+    poses[:, 3, 3] = 1.0
+    return poses
+
+
+def generate_log(
+    out_root: Path,
+    sequences: int = 1,
+    frames: int = 20,
+    seed: int = 0,
+    sensor: str = "hdl64",
+    first_sequence: int = 0,
+    config: SynthConfig | None = None,
+    on_frame: Callable[[str, int], None] | None = None,
+    overwrite: bool = False,
+) -> list[str]:
+    """Generate ``sequences`` synthetic sequences of ``frames`` sweeps under ``out_root/sequences/``.
+
+    Sequence k is named ``f"{first_sequence + k:02d}"`` and depends only on ``(seed, its number)``.
+    Poses are written in the camera frame with a KITTI ``Tr``, relative to the first frame (the
+    first LiDAR pose is the identity, as in KITTI).
+
+    Args:
+        out_root: log root (created if missing).
+        sequences: number of sequences.
+        frames: sweeps per sequence (10 Hz).
+        seed: master seed.
+        sensor: ``hdl64`` or ``vlp32``.
+        first_sequence: number of the first sequence.
+        config: world knobs; its ``sensor`` is replaced by ``sensor``.
+        on_frame: called with (sequence, frame index) after each frame is written.
+        overwrite: replace sequences that already exist (their scans and labels are deleted first).
+
+    Returns:
+        The sequence names written.
+
+    Raises:
+        SequenceLayoutError: a sequence folder already holds files and ``overwrite`` is False.
+        ConfigError: unknown ``sensor``.
+    """
+    config = SynthConfig(**{**(config or SynthConfig()).__dict__, "sensor": sensor})
+    spec = get_sensor(sensor)
+    tr = kitti_tr()
+    names = [f"{first_sequence + k:02d}" for k in range(sequences)]
+    for name in names:
+        _prepare(Path(out_root) / "sequences" / name, overwrite)
+    for name in names:
+        index = int(name)
+        seq_dir = Path(out_root) / "sequences" / name
+        plan = plan_sequence(seed, index, frames, config)
+        renderer = Renderer(plan.scene, spec, plan.poses[:, :2, 3])
+        frame_seeds = sequence_seed(seed, index).spawn(2)[1].spawn(frames)
+        for i in range(frames):
+            scan, label = renderer.render(
+                plan.poses[i], float(plan.times[i]), np.random.default_rng(frame_seeds[i])
+            )
+            write_frame(seq_dir, f"{i:06d}", scan, label)
+            if on_frame is not None:
+                on_frame(name, i)
+        relative = np.linalg.inv(plan.poses[0])[None] @ plan.poses
+        write_sequence_meta(seq_dir, relative, tr, plan.times)
+        log.info("wrote %s (%d frames, %s)", seq_dir, frames, sensor)
+    return names
+
+
+def _prepare(seq_dir: Path, overwrite: bool) -> None:
+    if not seq_dir.exists() or not any(seq_dir.iterdir()):
+        return
+    if not overwrite:
+        raise SequenceLayoutError(
+            seq_dir, "already holds a sequence; choose another folder or overwrite it (--overwrite)"
+        )
+    for pattern in ("velodyne/*.bin", "labels/*.label", "poses.txt", "calib.txt", "times.txt"):
+        for path in seq_dir.glob(pattern):
+            path.unlink()

@@ -1,0 +1,355 @@
+"""Ray casting kernels (numba, compiled once and cached on disk).
+
+Rays are cast in world coordinates against the ground (road at z = 0, sidewalks and beyond raised by
+the curb, classes looked up in Frenet coordinates) and against every primitive; the nearest hit wins.
+Primitives are culled per ray by a world-azimuth bin table and an elevation interval, and visited in
+order of their nearest possible distance so the search stops as soon as nothing closer can exist.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from dsnet_core.synth.road import (
+    CURB_HEIGHT,
+    DASH_ON,
+    DASH_PERIOD,
+    LANE_MARKING,
+    MARKING_WIDTH,
+    PARKING,
+    ROAD,
+    SIDEWALK,
+    TERRAIN,
+)
+
+_GROUND_REFL = {ROAD: 0.22, LANE_MARKING: 0.75, PARKING: 0.26, SIDEWALK: 0.33, 49: 0.28, TERRAIN: 0.42}
+GROUND_REFLECTIVITY = np.zeros(256, dtype=np.float64)
+for _k, _v in _GROUND_REFL.items():
+    GROUND_REFLECTIVITY[_k] = _v
+
+
+@nb.njit(cache=True)
+def _frenet(x, y, grid_s, grid_d, x0, y0, res):
+    ny, nx = grid_s.shape
+    fx = (x - x0) / res - 0.5
+    fy = (y - y0) / res - 0.5
+    if fx < 0.0 or fy < 0.0 or fx >= nx - 1 or fy >= ny - 1:
+        return math.nan, math.nan
+    j = int(fx)
+    i = int(fy)
+    ax = fx - j
+    ay = fy - i
+    s = (1 - ay) * ((1 - ax) * grid_s[i, j] + ax * grid_s[i, j + 1]) + ay * (
+        (1 - ax) * grid_s[i + 1, j] + ax * grid_s[i + 1, j + 1]
+    )
+    d = (1 - ay) * ((1 - ax) * grid_d[i, j] + ax * grid_d[i, j + 1]) + ay * (
+        (1 - ax) * grid_d[i + 1, j] + ax * grid_d[i + 1, j + 1]
+    )
+    return s, d
+
+
+@nb.njit(cache=True)
+def _zone(s, d, lay_s0, lay_ds, edges, outer, lanes, lane_w):
+    """(raw class, raised) of the ground at Frenet point (s, d)."""
+    if math.isnan(s):
+        return TERRAIN, True
+    side = 0 if d >= 0.0 else 1
+    ad = abs(d)
+    k = int((s - lay_s0) / lay_ds)
+    k = min(max(k, 0), edges.shape[2] - 1)
+    if ad < edges[side, 0, k]:
+        hw = 0.5 * MARKING_WIDTH
+        dashed = (s % DASH_PERIOD) < DASH_ON
+        if ad < hw and (dashed or lanes > 1):
+            return LANE_MARKING, False
+        for m in range(1, lanes):
+            if abs(ad - m * lane_w) < hw and dashed:
+                return LANE_MARKING, False
+        if abs(ad - (edges[side, 0, k] - 0.3)) < hw:
+            return LANE_MARKING, False
+        return ROAD, False
+    if ad < edges[side, 1, k]:
+        return PARKING, False
+    if ad < edges[side, 2, k]:
+        return SIDEWALK, True
+    return outer[side, k], True
+
+
+@nb.njit(cache=True)
+def _ground(
+    ox, oy, oz, dx, dy, dz, grid_s, grid_d, gx0, gy0, gres, lay_s0, lay_ds, edges, outer, lanes, lane_w
+):
+    """(t, raw class, |cos incidence|) of the ground hit; t = inf when the ray does not descend."""
+    if dz > -1e-9:
+        return math.inf, 0, 0.0
+    t1 = (CURB_HEIGHT - oz) / dz
+    s, d = _frenet(ox + t1 * dx, oy + t1 * dy, grid_s, grid_d, gx0, gy0, gres)
+    cls, raised = _zone(s, d, lay_s0, lay_ds, edges, outer, lanes, lane_w)
+    if raised:
+        return t1, cls, -dz
+    t0 = -oz / dz
+    s, d = _frenet(ox + t0 * dx, oy + t0 * dy, grid_s, grid_d, gx0, gy0, gres)
+    cls0, raised0 = _zone(s, d, lay_s0, lay_ds, edges, outer, lanes, lane_w)
+    if not raised0:
+        return t0, cls0, -dz
+    return t0, cls0, math.sqrt(max(0.0, 1.0 - dz * dz))  # the curb face
+
+
+@nb.njit(cache=True)
+def _intersect(kind, px, py, pz, dx, dy, dz, hx, hy, hz):
+    """Entry distance and |cos incidence| of a local-frame ray with a primitive (inf: miss)."""
+    if kind == 0:  # box, slab method
+        tmin = -math.inf
+        tmax = math.inf
+        axis_cos = 0.0
+        for a in range(3):
+            if a == 0:
+                p, d, h = px, dx, hx
+            elif a == 1:
+                p, d, h = py, dy, hy
+            else:
+                p, d, h = pz, dz, hz
+            if abs(d) < 1e-12:
+                if abs(p) > h:
+                    return math.inf, 0.0
+                continue
+            t1 = (-h - p) / d
+            t2 = (h - p) / d
+            if t1 > t2:
+                t1, t2 = t2, t1
+            if t1 > tmin:
+                tmin = t1
+                axis_cos = abs(d)
+            if t2 < tmax:
+                tmax = t2
+            if tmin > tmax:
+                return math.inf, 0.0
+        if tmin <= 0.0:
+            return math.inf, 0.0
+        return tmin, axis_cos
+    if kind == 1:  # vertical cylinder: radius hx, half height hz
+        best = math.inf
+        cos = 0.0
+        a = dx * dx + dy * dy
+        if a > 1e-12:
+            b = px * dx + py * dy
+            c = px * px + py * py - hx * hx
+            disc = b * b - a * c
+            if disc >= 0.0:
+                t = (-b - math.sqrt(disc)) / a
+                z = pz + t * dz
+                if t > 0.0 and abs(z) <= hz:
+                    best = t
+                    cos = abs((px + t * dx) * dx + (py + t * dy) * dy) / hx
+        cap = hz if pz > hz else (-hz if pz < -hz else 0.0)
+        if cap != 0.0 and abs(dz) > 1e-12:
+            t = (cap - pz) / dz
+            if 0.0 < t < best:
+                x = px + t * dx
+                y = py + t * dy
+                if x * x + y * y <= hx * hx:
+                    best = t
+                    cos = abs(dz)
+        return best, cos
+    # ellipsoid with semi-axes hx, hy, hz
+    qx, qy, qz = px / hx, py / hy, pz / hz
+    ex, ey, ez = dx / hx, dy / hy, dz / hz
+    a = ex * ex + ey * ey + ez * ez
+    b = qx * ex + qy * ey + qz * ez
+    c = qx * qx + qy * qy + qz * qz - 1.0
+    disc = b * b - a * c
+    if disc < 0.0:
+        return math.inf, 0.0
+    t = (-b - math.sqrt(disc)) / a
+    if t <= 0.0:
+        return math.inf, 0.0
+    nx = (qx + t * ex) / hx
+    ny = (qy + t * ey) / hy
+    nz = (qz + t * ez) / hz
+    nn = math.sqrt(nx * nx + ny * ny + nz * nz)
+    return t, abs(nx * dx + ny * dy + nz * dz) / nn
+
+
+@nb.njit(cache=True)
+def bin_primitives(ox, oy, oz, kind, center, half, max_range, n_bins):
+    """Cull and bin primitives around the origin.
+
+    Returns:
+        near ``(P,)`` nearest possible horizontal distance, el_lo/el_hi ``(P,)`` elevation interval
+        (radians), start ``(n_bins + 1,) int64`` and items ``(M,) int64``: the primitives of bin b,
+        nearest first, are ``items[start[b]:start[b + 1]]``.
+    """
+    n = kind.shape[0]
+    near = np.empty(n)
+    el_lo = np.empty(n)
+    el_hi = np.empty(n)
+    b_lo = np.zeros(n, np.int64)
+    b_hi = np.zeros(n, np.int64)
+    valid = np.zeros(n, np.bool_)
+    bw = 2.0 * math.pi / n_bins
+    for p in range(n):
+        dx = center[p, 0] - ox
+        dy = center[p, 1] - oy
+        dist = math.sqrt(dx * dx + dy * dy)
+        if kind[p] == 0:
+            rb = math.sqrt(half[p, 0] ** 2 + half[p, 1] ** 2)
+        else:
+            rb = max(half[p, 0], half[p, 1])
+        nr = dist - rb
+        if nr > max_range:
+            continue
+        valid[p] = True
+        nr = max(nr, 0.0)
+        far = dist + rb
+        near[p] = nr
+        zmin = center[p, 2] - half[p, 2] - oz
+        zmax = center[p, 2] + half[p, 2] - oz
+        el_hi[p] = math.atan2(zmax, nr if zmax > 0 else far)
+        el_lo[p] = math.atan2(zmin, far if zmin > 0 else nr)
+        if dist <= rb + 1e-6:
+            b_lo[p] = 0
+            b_hi[p] = n_bins - 1
+        else:
+            ha = math.asin(rb / dist) + 1e-3
+            ac = math.atan2(dy, dx)
+            lo = math.floor((ac - ha + math.pi) / bw)
+            hi = math.floor((ac + ha + math.pi) / bw)
+            if hi - lo + 1 >= n_bins:
+                lo, hi = 0, n_bins - 1
+            b_lo[p] = lo
+            b_hi[p] = hi
+    order = np.argsort(near)
+    count = np.zeros(n_bins + 1, np.int64)
+    for p in order:
+        if valid[p]:
+            for b in range(b_lo[p], b_hi[p] + 1):
+                count[(b % n_bins) + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    items = np.empty(start[-1], np.int64)
+    for p in order:
+        if valid[p]:
+            for b in range(b_lo[p], b_hi[p] + 1):
+                bb = b % n_bins
+                items[fill[bb]] = p
+                fill[bb] += 1
+    return near, el_lo, el_hi, start, items
+
+
+@nb.njit(cache=True)
+def cast_rays(
+    origin,
+    rot,
+    dirs,
+    kind,
+    center,
+    yaw,
+    half,
+    semantic,
+    instance,
+    reflectivity,
+    near,
+    el_lo,
+    el_hi,
+    start,
+    items,
+    n_bins,
+    grid_s,
+    grid_d,
+    gx0,
+    gy0,
+    gres,
+    lay_s0,
+    lay_ds,
+    edges,
+    outer,
+    lanes,
+    lane_w,
+    ground_refl,
+    max_range,
+):
+    """Cast sensor-frame rays ``dirs (R, 3)`` from ``origin (3,)`` rotated by ``rot (3, 3)``.
+
+    Returns:
+        t ``(R,)`` hit distance (inf: none within ``max_range``), semantic ``(R,) int32`` raw id,
+        instance ``(R,) int32``, cos ``(R,)`` |cos incidence|, reflectivity ``(R,)``.
+    """
+    nr = dirs.shape[0]
+    out_t = np.full(nr, math.inf)
+    out_sem = np.zeros(nr, np.int32)
+    out_inst = np.zeros(nr, np.int32)
+    out_cos = np.zeros(nr)
+    out_refl = np.zeros(nr)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    yc = np.cos(yaw)
+    ys = np.sin(yaw)
+    bw = 2.0 * math.pi / n_bins
+    for r in range(nr):
+        sx, sy, sz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+        dx = rot[0, 0] * sx + rot[0, 1] * sy + rot[0, 2] * sz
+        dy = rot[1, 0] * sx + rot[1, 1] * sy + rot[1, 2] * sz
+        dz = rot[2, 0] * sx + rot[2, 1] * sy + rot[2, 2] * sz
+        best, cls, cos = _ground(
+            ox,
+            oy,
+            oz,
+            dx,
+            dy,
+            dz,
+            grid_s,
+            grid_d,
+            gx0,
+            gy0,
+            gres,
+            lay_s0,
+            lay_ds,
+            edges,
+            outer,
+            lanes,
+            lane_w,
+        )
+        hit = -1
+        el = math.asin(min(1.0, max(-1.0, dz)))
+        b = int((math.atan2(dy, dx) + math.pi) / bw)
+        if b >= n_bins:
+            b = n_bins - 1
+        for k in range(start[b], start[b + 1]):
+            p = items[k]
+            if near[p] >= best:
+                break
+            if el < el_lo[p] - 1e-4 or el > el_hi[p] + 1e-4:
+                continue
+            qx = ox - center[p, 0]
+            qy = oy - center[p, 1]
+            c, s = yc[p], ys[p]
+            t, cs = _intersect(
+                kind[p],
+                c * qx + s * qy,
+                -s * qx + c * qy,
+                oz - center[p, 2],
+                c * dx + s * dy,
+                -s * dx + c * dy,
+                dz,
+                half[p, 0],
+                half[p, 1],
+                half[p, 2],
+            )
+            if t < best:
+                best = t
+                hit = p
+                cos = cs
+        if best > max_range:
+            continue
+        out_t[r] = best
+        out_cos[r] = cos
+        if hit >= 0:
+            out_sem[r] = semantic[hit]
+            out_inst[r] = instance[hit]
+            out_refl[r] = reflectivity[hit]
+        else:
+            out_sem[r] = cls
+            out_refl[r] = ground_refl[cls]
+    return out_t, out_sem, out_inst, out_cos, out_refl

@@ -10,6 +10,8 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[dev]"
+	# optional peer evaluators for the equality tests; --no-deps: their declared deps (GUI, unpinned torch) are not needed
+	$(PY) -m pip install -q --no-deps semantic-kitti-api==0.1 nuscenes-devkit==1.2.0
 	rm -f $(VENV)/.installed-*
 	touch $(STAMP)
 

@@ -67,6 +67,11 @@ def _print_summary(summary) -> None:
         console.print(hist)
 
 
+from flows.commands.eval import eval_command  # noqa: E402
+
+app.command(name="eval")(eval_command)
+
+
 def main() -> None:
     app()
 

@@ -37,6 +37,17 @@ class FramePQ:
     iou_sum: np.ndarray
     conf: np.ndarray
     n_valid: int
+    matches: Matches
+
+
+@dataclass(frozen=True)
+class Matches:
+    """A frame's true-positive pairs (IoU > 0.5), ``(M,)`` each, sorted by (gt label, pred label)."""
+
+    cls: np.ndarray
+    gt: np.ndarray
+    pred: np.ndarray
+    iou: np.ndarray
 
 
 class PanopticAccumulator:
@@ -82,7 +93,7 @@ class PanopticAccumulator:
         conf = np.bincount(cells.pred_cls * c + cells.gt_cls, weights=cells.count, minlength=c * c)
         conf = conf.astype(np.int64).reshape(c, c)
         cl = cells.select(~self._ignored[cells.gt_cls])
-        tp, fp, fn, iou_sum = self._match(cl)
+        tp, fp, fn, iou_sum, matches = self._match(cl)
         self.conf += conf
         self.tp += tp
         self.fp += fp
@@ -90,9 +101,9 @@ class PanopticAccumulator:
         for k in np.flatnonzero(iou_sum):
             self._iou[k].add(iou_sum[k])
         self.frames += 1
-        return FramePQ(tp, fp, fn, iou_sum, conf, cl.n_points)
+        return FramePQ(tp, fp, fn, iou_sum, conf, cl.n_points, matches)
 
-    def _match(self, cl: Cells) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _match(self, cl: Cells) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Matches]:
         c = self.spec.n_classes
         gm = self._include[cl.gt_cls]
         pm = self._include[cl.pred_cls]
@@ -136,7 +147,8 @@ class PanopticAccumulator:
         p_hit[pi[match]] = True
         fn = np.bincount(g_cls[~g_hit & (g_area >= self.min_points)], minlength=c).astype(np.int64)
         fp = np.bincount(p_cls[~p_hit & (p_area >= self.min_points)], minlength=c).astype(np.int64)
-        return tp, fp, fn, iou_sum
+        matches = Matches(cls_m, cl.gt[im][match], cl.pred[im][match], iou_m)
+        return tp, fp, fn, iou_sum, matches
 
     def merge(self, other: PanopticAccumulator) -> PanopticAccumulator:
         """Add ``other``'s counts into this accumulator (same spec, min_points, mode); returns self."""

@@ -49,8 +49,12 @@ class ClassSpec:
         return m
 
     @classmethod
-    def from_label_map(cls, label_map: LabelMap) -> ClassSpec:
-        return cls(label_map.class_names, tuple(label_map.things), tuple(label_map.stuff), (0,))
+    def from_label_map(cls, label_map: LabelMap, ignore: tuple[int, ...] = (0,)) -> ClassSpec:
+        """Classes of a label map; ``ignore`` lists ignored train ids (``learning_ignore``)."""
+        ign = tuple(sorted(set(ignore)))
+        things = tuple(c for c in label_map.things if c not in ign)
+        stuff = tuple(c for c in label_map.stuff if c not in ign)
+        return cls(label_map.class_names, things, stuff, ign)
 
 
 class LabelDecoder(Protocol):

@@ -35,7 +35,8 @@ class PanopticEvaluator:
         min_points: minimum segment size; PQ counts unmatched segments with ≥ it, LSTQ keeps
             a gt id in a frame with > it (default: the label map's, 50 for SemanticKITTI).
         mode: ``official`` (benchmark-exact, quirks included) or ``corrected``.
-        keep_rows: keep one :class:`FrameRow` per frame in :attr:`rows`.
+        keep_rows: keep one :class:`FrameRow` per frame in :attr:`rows` (memory grows with frames).
+        ignore: ignored train ids, the config's ``learning_ignore`` (default: class 0).
     """
 
     def __init__(
@@ -44,9 +45,10 @@ class PanopticEvaluator:
         min_points: int | None = None,
         mode: Mode | str = Mode.OFFICIAL,
         keep_rows: bool = True,
+        ignore: tuple[int, ...] = (0,),
     ) -> None:
         self.label_map = label_map
-        self.spec = ClassSpec.from_label_map(label_map)
+        self.spec = ClassSpec.from_label_map(label_map, ignore)
         self.min_points = int(label_map.min_points if min_points is None else min_points)
         self.mode = as_mode(mode)
         self.keep_rows = keep_rows

@@ -45,7 +45,8 @@ def eval_command(
             seqs = [str(s) for s in label_map.split.get("valid", [])]
             if not seqs:
                 raise typer.BadParameter("no --sequences given and the config has no 'valid' split")
-        ev = PanopticEvaluator(label_map, min_points=min_points, mode=mode, keep_rows=False)
+        ignore = _learning_ignore(data_config)
+        ev = PanopticEvaluator(label_map, min_points=min_points, mode=mode, keep_rows=False, ignore=ignore)
         pairs = pair_label_files(gt, pred, seqs)
         columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
         with Progress(*columns, console=console, transient=True) as progress:
@@ -57,7 +58,7 @@ def eval_command(
     except (DsnetError, ValueError) as exc:
         typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
         raise typer.Exit(code=2) from None
-    _print_result(result, label_map)
+    _print_result(result)
     if json_out is not None:
         import json
 
@@ -66,7 +67,18 @@ def eval_command(
         typer.echo(f"wrote {json_out}")
 
 
-def _print_result(result, label_map) -> None:
+def _learning_ignore(data_config: Path | None) -> tuple[int, ...]:
+    """Train ids marked ``true`` in the config's ``learning_ignore`` (class 0 without a config)."""
+    if data_config is None:
+        return (0,)
+    import yaml
+
+    data = yaml.safe_load(data_config.read_text()) or {}
+    ignored = tuple(int(k) for k, v in (data.get("learning_ignore") or {}).items() if v)
+    return ignored or (0,)
+
+
+def _print_result(result) -> None:
     from rich.console import Console
     from rich.table import Table
 

@@ -131,3 +131,24 @@ def test_missing_extra_and_mismatched_predictions_are_named(log, tmp_path):
     assert res.exit_code == 2 and "prediction folder of sequence 13 does not exist" in res.output
     res = _invoke("--gt", gt_root, "--pred", pred_root, "--sequences", "08", "--mode", "exact")
     assert res.exit_code == 2 and "unknown scoring mode 'exact'" in res.output
+
+
+def test_data_config_sets_split_and_ignored_classes(log, tmp_path):
+    import yaml
+
+    gt_root, pred_root, frames = log
+    data = yaml.safe_load((ROOT / "dsnet_core" / "data" / "semantic-kitti.yaml").read_text())
+    data["split"]["valid"] = [13]
+    data["learning_ignore"][11] = True  # sidewalk (the perturbation's relabel target) ignored
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "s.json"
+    res = _invoke("--gt", gt_root, "--pred", pred_root, "--data-config", cfg, "--json", out)
+    assert res.exit_code == 0, res.output
+    report = json.loads(out.read_text())
+    assert report["frames"] == 3 and "sidewalk" not in report["per_class"] and len(report["per_class"]) == 18
+    ev = PanopticEvaluator(load_label_map(cfg), ignore=(0, 11))
+    for seq, name, gt, pred in frames:
+        if seq == "13":
+            ev.add(gt, pred, frame=name, sequence=seq)
+    assert report["pq"] == ev.result().panoptic.pq

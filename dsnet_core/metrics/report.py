@@ -113,31 +113,21 @@ class EvalResult:
     lstq: LSTQResult
 
     def to_dict(self) -> dict[str, object]:
-        """The JSON object of ``dsnet eval --json`` (keys fixed by issue 3)."""
+        """The JSON object of ``dsnet eval --json`` (keys fixed by issue 3; NaN/inf become null)."""
         p, t = self.panoptic, self.lstq
-        return {
-            "mode": str(self.mode),
-            "pq": p.pq,
-            "pq_dagger": p.pq_dagger,
-            "sq": p.sq,
-            "rq": p.rq,
-            "pq_things": p.pq_things,
-            "sq_things": p.sq_things,
-            "rq_things": p.rq_things,
-            "pq_stuff": p.pq_stuff,
-            "sq_stuff": p.sq_stuff,
-            "rq_stuff": p.rq_stuff,
-            "miou": p.miou,
-            "lstq": _json_float(t.lstq),
-            "s_assoc": _json_float(t.s_assoc),
-            "s_cls": t.s_cls,
-            "iou_stuff": t.iou_stuff,
-            "iou_things": t.iou_things,
-            "per_class": {
-                name: {"pq": c.pq, "sq": c.sq, "rq": c.rq, "iou": c.iou} for name, c in p.per_class.items()
-            },
-            "frames": self.frames,
+        out: dict[str, object] = {"mode": str(self.mode)}
+        for key in ("pq", "pq_dagger", "sq", "rq", "pq_things", "sq_things", "rq_things"):
+            out[key] = _json_float(getattr(p, key))
+        for key in ("pq_stuff", "sq_stuff", "rq_stuff", "miou"):
+            out[key] = _json_float(getattr(p, key))
+        for key in ("lstq", "s_assoc", "s_cls", "iou_stuff", "iou_things"):
+            out[key] = _json_float(getattr(t, key))
+        out["per_class"] = {
+            name: {k: _json_float(getattr(c, k)) for k in ("pq", "sq", "rq", "iou")}
+            for name, c in p.per_class.items()
         }
+        out["frames"] = self.frames
+        return out
 
 
 def _json_float(x: float) -> float | None:

@@ -65,3 +65,14 @@ def test_rows_report_each_frame(kitti):
     assert row.pq == pytest.approx((50 / 60 + 1 + 0) / 3)
     assert row.miou == pytest.approx((50 / 60 + 1 + 0) / 3)
     assert ev.rows == [row] and set(row.to_dict()) >= {"sequence", "frame", "pq", "miou", "tp"}
+
+
+def test_report_dict_has_the_issue_keys_and_no_nan(kitti):
+    import json
+
+    ev = PanopticEvaluator(kitti)
+    ev.add(np.full(10, 40, np.uint32), np.full(10, 40, np.uint32))  # no thing tube: S_assoc undefined
+    d = ev.result().to_dict()
+    assert list(d)[:2] == ["mode", "pq"] and d["s_assoc"] is None and d["lstq"] is None
+    assert d["per_class"]["road"] == {"pq": 1.0, "sq": 1.0, "rq": 1.0, "iou": 1.0} and d["frames"] == 1
+    json.loads(json.dumps(d, allow_nan=False))

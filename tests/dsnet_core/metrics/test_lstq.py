@@ -138,3 +138,26 @@ def test_official_mode_equals_the_literal_transcription(kitti, seed, mp, n, n_in
     assert r.lstq == pytest.approx(lstq, abs=1e-12, rel=0)
     assert r.iou_things == pytest.approx(iou[1:9].mean(), abs=1e-12)
     assert r.iou_stuff == pytest.approx(iou[9:].mean(), abs=1e-12)
+
+
+def test_the_4dpls_self_test_example():
+    """The worked example in 4D-PLS's eval_np.py ``__main__``: LSTQ = sqrt(1/3), S_assoc = 2/3."""
+    from dsnet_core.metrics.decode import ClassSpec, TrainDecoder, make_cells, train_labels
+    from dsnet_core.metrics.lstq import LSTQAccumulator
+
+    spec = ClassSpec(("ignore", "car", "truck"), things=(1, 2), stuff=())
+    sem_gt, inst_gt = np.zeros(20, int), np.zeros(20, int)
+    sem_gt[5:10], sem_gt[10:] = 1, 2
+    inst_gt[5:10], inst_gt[10:], inst_gt[15:] = 1, 1, 2
+    sem_pred, inst_pred = np.zeros(20, int), np.zeros(20, int)
+    sem_pred[5:10], sem_pred[10:15], sem_pred[15:] = 1, 2, 1
+    inst_pred[5:10], inst_pred[10:] = 1, 2
+    acc = LSTQAccumulator(spec, min_points=1)
+    gt, pred = train_labels(sem_gt, inst_gt, 3, "gt"), train_labels(sem_pred, inst_pred, 3, "pred")
+    acc.add(make_cells(gt, pred, TrainDecoder(), TrainDecoder()), "1")
+    r = acc.result()
+    assert r.lstq == pytest.approx(np.sqrt(1.0 / 3), abs=1e-15)
+    assert r.s_assoc == pytest.approx(2.0 / 3, abs=1e-15) and r.s_cls == 0.5
+    assert r.per_class_iou == {"car": 0.5, "truck": 0.5}
+    _, _, per_class = acc.association()
+    np.testing.assert_allclose(per_class / np.maximum([0, 1, 2], 1e-15), [0, 1.0, 0.5])

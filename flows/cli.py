@@ -67,10 +67,13 @@ def _print_summary(summary) -> None:
         console.print(hist)
 
 
+# Command registrations: one line per command, bodies live in flows/commands/.
 from flows.commands import synth as _synth  # noqa: E402
+from flows.commands.eval import eval_command  # noqa: E402
 
 app.command()(_synth.synth)
 app.command()(_synth.demo)
+app.command(name="eval")(eval_command)
 
 
 def main() -> None:

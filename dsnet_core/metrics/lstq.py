@@ -1,0 +1,227 @@
+"""LSTQ = sqrt(S_assoc · S_cls): a streaming, mergeable accumulator.
+
+Two association rules share the machinery (see METRICS.md):
+
+* ``4dpls`` — the SemanticKITTI 4D benchmark (4D-PLS ``Panoptic4DEval``): class-agnostic ids
+  ``v >> 16``; predicted sizes in one table per sequence over predicted classes 1..C-1 (stuff
+  included); gt tubes per (sequence, class) fed by frames where the id has > min_points points;
+  S_assoc's numerator sums all classes, its denominator counts thing tubes only; S_cls divides
+  by the classes with a non-zero union, class 0 included.
+* ``nuscenes`` — the Panoptic nuScenes tracking evaluator: only thing classes; ids are whole
+  panoptic labels; predicted sizes also need > min_points per frame and class; S_cls is the
+  mean IoU over the scored classes, absent classes 0.
+
+``corrected`` mode (4dpls) fixes the documented defects: ids count on thing classes only (in
+ground truth and prediction), a gt instance with ≤ min_points points in a frame is dropped from
+everything in that frame (prediction sizes too), S_assoc averages thing tubes over thing tubes,
+and S_cls ignores class 0. Ground truth scored against itself then gives S_assoc = 1.
+
+Memory: per sequence, tables keyed by tube, predicted id and (tube, predicted id): bounded by
+segments, never by points or frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .cells import Cells, CountTable
+from .decode import ClassSpec
+from .panoptic import EPS, semantic_iou
+from .report import LSTQResult, Mode, as_mode
+
+VARIANTS = ("4dpls", "nuscenes")
+_ID_BITS = 24  # ids < 2**24 (SemanticKITTI ids < 2**16, nuScenes labels < 2**16)
+_U = np.uint64
+
+
+class _SeqTables:
+    __slots__ = ("inter", "preds", "tubes")
+
+    def __init__(self) -> None:
+        self.preds = CountTable()  # pred id -> points
+        self.tubes = CountTable()  # cls << 24 | gt id -> points
+        self.inter = CountTable()  # (cls << 24 | gt id) << 24 | pred id -> points
+
+    def merge(self, other: _SeqTables) -> None:
+        self.preds.merge(other.preds)
+        self.tubes.merge(other.tubes)
+        self.inter.merge(other.inter)
+
+
+class LSTQAccumulator:
+    """Accumulates the association tables and the semantic confusion matrix.
+
+    Args:
+        spec: the scored classes.
+        min_points: a gt id contributes to its tube in a frame only with > min_points points.
+        mode: ``official`` or ``corrected`` (``corrected`` applies to the ``4dpls`` variant).
+        variant: ``4dpls`` (SemanticKITTI 4D) or ``nuscenes`` (Panoptic nuScenes tracking).
+    """
+
+    def __init__(
+        self,
+        spec: ClassSpec,
+        min_points: int = 50,
+        mode: Mode | str = Mode.OFFICIAL,
+        variant: str = "4dpls",
+    ) -> None:
+        if variant not in VARIANTS:
+            raise ValueError(f"unknown LSTQ variant {variant!r}: use one of {VARIANTS}")
+        self.spec = spec
+        self.min_points = int(min_points)
+        self.mode = as_mode(mode)
+        self.variant = variant
+        c = spec.n_classes
+        self._ignored = spec.mask(spec.ignore)
+        self._include = ~self._ignored
+        self._thing = spec.mask(spec.things)
+        self.conf = np.zeros((c, c), dtype=np.int64)
+        self.seqs: dict[str, _SeqTables] = {}
+        self.frames = 0
+
+    # -- accumulation ---------------------------------------------------------------------
+    def add(self, cells: Cells, sequence: str) -> None:
+        """Add one frame of ``sequence`` given its cells."""
+        c = self.spec.n_classes
+        if cells.count.size and (max(cells.gt_cls.max(), cells.pred_cls.max()) >= c):
+            raise ValueError(f"class ids must be < {c}")
+        if cells.count.size and max(cells.gt_id.max(), cells.pred_id.max()) >= 1 << _ID_BITS:
+            raise ValueError(f"instance ids must be < 2**{_ID_BITS}")
+        conf = np.bincount(cells.pred_cls * c + cells.gt_cls, weights=cells.count, minlength=c * c)
+        self.conf += conf.astype(np.int64).reshape(c, c)
+        cl = cells.select(~self._ignored[cells.gt_cls])
+        tables = self.seqs.setdefault(str(sequence), _SeqTables())
+        if self.variant == "nuscenes":
+            self._add_nuscenes(cl, tables)
+        elif self.mode is Mode.OFFICIAL:
+            self._add_4dpls(cl, tables, cl.gt_id, cl.pred_id, self._include)
+        else:
+            gid = np.where(self._thing[cl.gt_cls], cl.gt_id, 0)
+            pid = np.where(self._thing[cl.pred_cls], cl.pred_id, 0)
+            tube, n = _group(_tube_key(cl.gt_cls, gid), cl.count, gid != 0)
+            small = tube[n <= self.min_points]
+            keep = ~np.isin(_tube_key(cl.gt_cls, gid), small) | (gid == 0)
+            cl = cl.select(keep)
+            self._add_4dpls(cl, tables, gid[keep], pid[keep], self._thing)
+        self.frames += 1
+
+    def _add_4dpls(
+        self, cl: Cells, t: _SeqTables, gid: np.ndarray, pid: np.ndarray, tube_cls: np.ndarray
+    ) -> None:
+        pm = self._include[cl.pred_cls] & (pid != 0)
+        t.preds.add(pid[pm].astype(_U), cl.count[pm])
+        self._add_tubes(cl, t, gid, pid, tube_cls[cl.gt_cls] & (gid != 0), pid != 0)
+
+    def _add_nuscenes(self, cl: Cells, t: _SeqTables) -> None:
+        # predicted sizes: per frame and thing class, ids with > min_points points
+        pm = self._thing[cl.pred_cls]
+        keys, n = _group(cl.pred_id.astype(_U), cl.count, pm)
+        big = n > self.min_points
+        t.preds.add(keys[big], n[big])
+        self._add_tubes(cl, t, cl.gt_id, cl.pred_id, self._thing[cl.gt_cls], np.ones(cl.count.size, bool))
+
+    def _add_tubes(
+        self,
+        cl: Cells,
+        t: _SeqTables,
+        gid: np.ndarray,
+        pid: np.ndarray,
+        gm: np.ndarray,
+        pred_ok: np.ndarray,
+    ) -> None:
+        tkey = _tube_key(cl.gt_cls, gid)
+        keys, n = _group(tkey, cl.count, gm)
+        big = n > self.min_points
+        t.tubes.add(keys[big], n[big])
+        im = gm & np.isin(tkey, keys[big]) & pred_ok
+        t.inter.add((tkey[im] << _U(_ID_BITS)) | pid[im].astype(_U), cl.count[im])
+
+    def merge(self, other: LSTQAccumulator) -> LSTQAccumulator:
+        """Add ``other``'s tables into this accumulator; returns self.
+
+        Frames of one sequence may be split across accumulators in any way.
+        """
+        same = (other.spec, other.min_points, other.mode, other.variant)
+        if same != (self.spec, self.min_points, self.mode, self.variant):
+            raise ValueError("cannot merge accumulators with different classes, min_points, mode or variant")
+        self.conf += other.conf
+        for seq, tables in other.seqs.items():
+            self.seqs.setdefault(seq, _SeqTables()).merge(tables)
+        self.frames += other.frames
+        return self
+
+    # -- results --------------------------------------------------------------------------
+    def association(self) -> tuple[float, int, np.ndarray]:
+        """``(numerator, thing tubes, per-class numerator (C,))`` of S_assoc."""
+        c = self.spec.n_classes
+        total = 0.0
+        per_class = np.zeros(c, dtype=np.float64)
+        n_thing = 0
+        for seq in sorted(self.seqs):
+            t = self.seqs[seq]
+            tkeys, tsize = t.tubes.items()
+            pkeys, psize = t.preds.items()
+            ikeys, tpa = t.inter.items()
+            tcls = (tkeys >> _U(_ID_BITS)).astype(np.int64)
+            n_thing += int(self._thing[tcls].sum())
+            if not ikeys.size or not tkeys.size:
+                continue
+            it = np.searchsorted(tkeys, ikeys >> _U(_ID_BITS))
+            pid = ikeys & _U((1 << _ID_BITS) - 1)
+            if not pkeys.size:
+                continue
+            ip = np.minimum(np.searchsorted(pkeys, pid), pkeys.size - 1)
+            found = pkeys[ip] == pid
+            g = tsize[it[found]].astype(np.float64)
+            p = psize[ip[found]].astype(np.float64)
+            a = tpa[found].astype(np.float64)
+            contrib = a * (a / (g + p - a)) / g
+            per_tube = np.bincount(it[found], weights=contrib, minlength=tkeys.size)
+            per_class += np.bincount(tcls, weights=per_tube, minlength=c)
+            total += math.fsum(per_tube)
+        return total, n_thing, per_class
+
+    def result(self) -> LSTQResult:
+        """LSTQ and its parts so far (does not change the state; calling twice gives the same)."""
+        spec = self.spec
+        num, n_thing, _ = self.association()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_assoc = float(np.float64(num) / np.float64(n_thing))
+        iou, union = semantic_iou(self.conf, spec.ignore)
+        inc = spec.include
+        if self.variant == "nuscenes":
+            s_cls = float(iou[inc].mean())
+        elif self.mode is Mode.OFFICIAL:
+            present = np.count_nonzero(union)
+            s_cls = float(np.sum(iou) / present) if present else float("nan")
+        else:
+            present = union[inc] > 0
+            s_cls = float(iou[inc][present].mean()) if present.any() else float("nan")
+        prod = s_assoc * s_cls
+        lstq = math.sqrt(prod) if prod >= 0 else float("nan")
+        th, st = list(spec.things), list(spec.stuff)
+        return LSTQResult(
+            mode=self.mode,
+            lstq=lstq,
+            s_assoc=s_assoc,
+            s_cls=s_cls,
+            iou_things=float(iou[th].mean()) if th else float("nan"),
+            iou_stuff=float(iou[st].mean()) if st else float("nan"),
+            n_tubes=n_thing,
+            per_class_iou={spec.names[k]: float(iou[k]) for k in inc},
+        )
+
+
+def _tube_key(cls: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    return (cls.astype(_U) << _U(_ID_BITS)) | ids.astype(_U)
+
+
+def _group(keys: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum ``counts`` by ``keys`` over ``mask``: ``(unique keys (M,) uint64, sums (M,) int64)``."""
+    k, inv = np.unique(keys[mask], return_inverse=True)
+    return k, np.bincount(inv, weights=counts[mask], minlength=k.size).astype(np.int64)
+
+
+__all__ = ["EPS", "VARIANTS", "LSTQAccumulator"]

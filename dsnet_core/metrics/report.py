@@ -1,0 +1,135 @@
+"""Scoring modes and result records (plain dataclasses; ``to_dict`` gives JSON-ready values)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from enum import StrEnum
+
+
+class Mode(StrEnum):
+    """How faithfully to follow the public evaluators.
+
+    ``official`` reproduces the benchmark code to 1e-12, defects included (see METRICS.md);
+    ``corrected`` fixes the documented defects. Every result records its mode.
+    """
+
+    OFFICIAL = "official"
+    CORRECTED = "corrected"
+
+
+def as_mode(mode: Mode | str) -> Mode:
+    """Parse a mode name; raise ``ValueError`` naming the valid ones."""
+    try:
+        return Mode(str(mode).lower())
+    except ValueError:
+        raise ValueError(f"unknown scoring mode {mode!r}: use 'official' or 'corrected'") from None
+
+
+@dataclass(frozen=True)
+class ClassScore:
+    """Scores of one train class (all in [0, 1])."""
+
+    pq: float
+    sq: float
+    rq: float
+    iou: float
+    tp: int
+    fp: int
+    fn: int
+
+
+@dataclass(frozen=True)
+class PQResult:
+    """The PQ family and mIoU of a set of frames (SemanticKITTI ``evaluate_panoptic.py`` semantics).
+
+    Means run over the evaluated classes (absent classes count 0); ``per_class`` maps class name
+    to :class:`ClassScore` for every evaluated class.
+    """
+
+    mode: Mode
+    pq: float
+    sq: float
+    rq: float
+    pq_dagger: float
+    pq_things: float
+    sq_things: float
+    rq_things: float
+    pq_stuff: float
+    sq_stuff: float
+    rq_stuff: float
+    miou: float
+    per_class: dict[str, ClassScore] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LSTQResult:
+    """LSTQ and its parts (4D-PLS ``Panoptic4DEval`` semantics, or the Panoptic nuScenes variant).
+
+    ``s_assoc`` is NaN when no ground-truth thing tube exists (the reference divides by zero).
+    """
+
+    mode: Mode
+    lstq: float
+    s_assoc: float
+    s_cls: float
+    iou_things: float
+    iou_stuff: float
+    n_tubes: int
+    per_class_iou: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class FrameRow:
+    """Per-frame scores, one row per scored frame (for a parquet table later).
+
+    ``pq`` averages the classes seen in this frame (tp + fp + fn > 0), ``miou`` the classes with a
+    non-zero union in this frame; both are NaN when the frame has none.
+    """
+
+    sequence: str
+    frame: str
+    n_points: int
+    n_valid: int
+    pq: float
+    sq: float
+    rq: float
+    miou: float
+    tp: int
+    fp: int
+    fn: int
+
+    def to_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """Everything ``dsnet eval`` reports: PQ family, mIoU, LSTQ family, frames scored, mode."""
+
+    mode: Mode
+    frames: int
+    panoptic: PQResult
+    lstq: LSTQResult
+
+    def to_dict(self) -> dict[str, object]:
+        """The JSON object of ``dsnet eval --json`` (keys fixed by issue 3; NaN/inf become null)."""
+        p, t = self.panoptic, self.lstq
+        out: dict[str, object] = {"mode": str(self.mode)}
+        for key in ("pq", "pq_dagger", "sq", "rq", "pq_things", "sq_things", "rq_things"):
+            out[key] = _json_float(getattr(p, key))
+        for key in ("pq_stuff", "sq_stuff", "rq_stuff", "miou"):
+            out[key] = _json_float(getattr(p, key))
+        for key in ("lstq", "s_assoc", "s_cls", "iou_stuff", "iou_things"):
+            out[key] = _json_float(getattr(t, key))
+        out["per_class"] = {
+            name: {k: _json_float(getattr(c, k)) for k in ("pq", "sq", "rq", "iou")}
+            for name, c in p.per_class.items()
+        }
+        out["frames"] = self.frames
+        return out
+
+
+def _json_float(x: float) -> float | None:
+    """NaN/inf are not JSON: report them as null."""
+    return None if not math.isfinite(x) else float(x)

@@ -1,0 +1,104 @@
+"""``dsnet eval``: a drop-in scorer for any SemanticKITTI-layout predictions folder.
+
+Heavy imports live in the command body so ``dsnet --help`` stays instant.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def eval_command(
+    gt: Path = typer.Option(..., "--gt", help="Ground-truth root (holds sequences/SS/labels/*.label)."),
+    pred: Path = typer.Option(
+        ..., "--pred", help="Prediction root (holds sequences/SS/predictions/*.label)."
+    ),
+    sequences: str = typer.Option(
+        None, help="Comma-separated sequences (default: the config's valid split)."
+    ),
+    data_config: Path = typer.Option(
+        None, "--data-config", help="SemanticKITTI-style label YAML (default: the bundled semantic-kitti)."
+    ),
+    min_points: int = typer.Option(
+        None, "--min-points", help="Minimum segment size (default: config's, 50)."
+    ),
+    mode: str = typer.Option("official", help="official (benchmark-exact) or corrected."),
+    json_out: Path = typer.Option(None, "--json", help="Also write the scores to this JSON file."),
+) -> None:
+    """Score predictions against ground truth: PQ family, mIoU and LSTQ, paired by file name."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from dsnet_core.errors import DsnetError
+    from dsnet_core.labels import load_label_map
+    from dsnet_core.metrics.evaluator import PanopticEvaluator
+    from dsnet_core.metrics.pairing import iter_pairs, pair_label_files
+
+    console = Console(stderr=True)
+    try:
+        label_map = load_label_map(data_config or "semantic-kitti")
+        if sequences:
+            seqs = [s for s in sequences.split(",") if s.strip()]
+        else:
+            seqs = [str(s) for s in label_map.split.get("valid", [])]
+            if not seqs:
+                raise typer.BadParameter("no --sequences given and the config has no 'valid' split")
+        ignore = _learning_ignore(data_config)
+        ev = PanopticEvaluator(label_map, min_points=min_points, mode=mode, keep_rows=False, ignore=ignore)
+        pairs = pair_label_files(gt, pred, seqs)
+        columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+        with Progress(*columns, console=console, transient=True) as progress:
+            task = progress.add_task("frames", total=len(pairs))
+            for pair, g, p in iter_pairs(pairs):
+                ev.add(g, p, frame=pair.frame, sequence=pair.sequence)
+                progress.advance(task)
+        result = ev.result()
+    except (DsnetError, ValueError) as exc:
+        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+        raise typer.Exit(code=2) from None
+    _print_result(result)
+    if json_out is not None:
+        import json
+
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+        typer.echo(f"wrote {json_out}")
+
+
+def _learning_ignore(data_config: Path | None) -> tuple[int, ...]:
+    """Train ids marked ``true`` in the config's ``learning_ignore`` (class 0 without a config)."""
+    if data_config is None:
+        return (0,)
+    import yaml
+
+    data = yaml.safe_load(data_config.read_text()) or {}
+    ignored = tuple(int(k) for k, v in (data.get("learning_ignore") or {}).items() if v)
+    return ignored or (0,)
+
+
+def _print_result(result) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    p, t = result.panoptic, result.lstq
+    table = Table(title=f"panoptic scores ({result.frames} frames, mode: {result.mode})")
+    for col in ("", "PQ", "SQ", "RQ", "IoU"):
+        table.add_column(col, justify="right")
+    table.add_row("all", _f(p.pq), _f(p.sq), _f(p.rq), _f(p.miou), style="bold")
+    table.add_row("things", _f(p.pq_things), _f(p.sq_things), _f(p.rq_things), _f(t.iou_things))
+    table.add_row("stuff", _f(p.pq_stuff), _f(p.sq_stuff), _f(p.rq_stuff), _f(t.iou_stuff), end_section=True)
+    for name, c in p.per_class.items():
+        table.add_row(name, _f(c.pq), _f(c.sq), _f(c.rq), _f(c.iou))
+    console.print(table)
+    summary = Table(title="PQ† and LSTQ")
+    for col in ("PQ†", "LSTQ", "S_assoc", "S_cls"):
+        summary.add_column(col, justify="right")
+    summary.add_row(_f(p.pq_dagger), _f(t.lstq), _f(t.s_assoc), _f(t.s_cls))
+    console.print(summary)
+
+
+def _f(x: float) -> str:
+    return "n/a" if x != x else f"{100 * x:.1f}"

@@ -1,0 +1,136 @@
+"""The Cylinder3D asymmetric residual sparse U-Net (base width ``w``; the paper uses 32).
+
+Layout (channels): context block C_in→w; down blocks w→2w→4w→8w→16w (strides 2,2,2 / 2,2,2 /
+2,2,1 / 2,2,1); up blocks 16w→16w→8w→4w→2w back onto the skip sites; the dimension-decomposition
+refinement (three rank-1 kernels, sigmoid gates, multiplied with its input) concatenated with its
+input gives 4w channels per active voxel.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from dsnet_core.model.sparse_conv import SparseConv3d, SparseInverseConv3d, SparseTensor, SubMConv3d
+
+K133, K313, K333 = (1, 3, 3), (3, 1, 3), (3, 3, 3)
+
+
+class ConvBNAct(nn.Module):
+    """Submanifold conv → activation → batch norm (the reference order), or conv → BN → act."""
+
+    def __init__(self, cin: int, cout: int, kernel, act: nn.Module | None = None, bn_first: bool = False):
+        super().__init__()
+        self.conv = SubMConv3d(cin, cout, kernel)
+        self.bn = nn.BatchNorm1d(cout)
+        self.act = act if act is not None else nn.LeakyReLU()
+        self.bn_first = bn_first
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        f = self.conv(x).features
+        f = self.act(self.bn(f)) if self.bn_first else self.bn(self.act(f))
+        return x.with_features(f)
+
+
+class ResContextBlock(nn.Module):
+    """Two asymmetric branches (1×3×3 then 3×1×3, and 3×1×3 then 1×3×3), summed."""
+
+    def __init__(self, cin: int, cout: int, first=K133, second=K313) -> None:
+        super().__init__()
+        self.a1, self.a2 = ConvBNAct(cin, cout, first), ConvBNAct(cout, cout, second)
+        self.b1, self.b2 = ConvBNAct(cin, cout, second), ConvBNAct(cout, cout, first)
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        a = self.a2(self.a1(x)).features
+        b = self.b2(self.b1(x))
+        return b.with_features(b.features + a)
+
+
+class DownBlock(nn.Module):
+    """Asymmetric residual block then a strided 3×3×3 sparse conv; returns (coarse, skip)."""
+
+    def __init__(self, cin: int, cout: int, stride: tuple[int, int, int], key: str) -> None:
+        super().__init__()
+        self.res = ResContextBlock(cin, cout, first=K313, second=K133)
+        self.pool = SparseConv3d(cout, cout, 3, stride=stride, padding=1, indice_key=key)
+
+    def forward(self, x: SparseTensor) -> tuple[SparseTensor, SparseTensor]:
+        skip = self.res(x)
+        return self.pool(skip), skip
+
+
+class UpBlock(nn.Module):
+    """3×3×3 conv, inverse conv onto the skip sites, add the skip, then 1×3×3, 3×1×3, 3×3×3."""
+
+    def __init__(self, cin: int, cout: int, key: str) -> None:
+        super().__init__()
+        self.trans = ConvBNAct(cin, cout, K333)
+        self.up = SparseInverseConv3d(cout, cout, 3, indice_key=key)
+        self.c1, self.c2, self.c3 = (
+            ConvBNAct(cout, cout, K133),
+            ConvBNAct(cout, cout, K313),
+            ConvBNAct(cout, cout, K333),
+        )
+
+    def forward(self, x: SparseTensor, skip: SparseTensor) -> SparseTensor:
+        up = self.up(self.trans(x))
+        up = up.with_features(up.features + skip.features)
+        return self.c3(self.c2(self.c1(up)))
+
+
+class ReconBlock(nn.Module):
+    """Dimension-decomposition refinement: σ(BN(3×1×1)) + σ(BN(1×3×1)) + σ(BN(1×1×3)), times the input."""
+
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.branches = nn.ModuleList(
+            ConvBNAct(channels, channels, k, act=nn.Sigmoid(), bn_first=True)
+            for k in ((3, 1, 1), (1, 3, 1), (1, 1, 3))
+        )
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        gate = sum(b(x).features for b in self.branches)
+        return x.with_features(gate * x.features)
+
+
+class AsymmetricUNet(nn.Module):
+    """The cylinder backbone: ``(M, C_in)`` voxel features → ``(M, 4w)`` on the same sites.
+
+    Args:
+        in_channels: voxel input channels (16 after the point MLP's compression).
+        width: base width ``w``.
+    """
+
+    def __init__(self, in_channels: int = 16, width: int = 32) -> None:
+        super().__init__()
+        w = width
+        self.out_channels = 4 * w
+        self.context = ResContextBlock(in_channels, w)
+        self.down = nn.ModuleList(
+            [
+                DownBlock(w, 2 * w, (2, 2, 2), "down2"),
+                DownBlock(2 * w, 4 * w, (2, 2, 2), "down3"),
+                DownBlock(4 * w, 8 * w, (2, 2, 1), "down4"),
+                DownBlock(8 * w, 16 * w, (2, 2, 1), "down5"),
+            ]
+        )
+        self.up = nn.ModuleList(
+            [
+                UpBlock(16 * w, 16 * w, "down5"),
+                UpBlock(16 * w, 8 * w, "down4"),
+                UpBlock(8 * w, 4 * w, "down3"),
+                UpBlock(4 * w, 2 * w, "down2"),
+            ]
+        )
+        self.recon = ReconBlock(2 * w)
+
+    def forward(self, x: SparseTensor) -> SparseTensor:
+        x = self.context(x)
+        skips = []
+        for block in self.down:
+            x, skip = block(x)
+            skips.append(skip)
+        for block, skip in zip(self.up, reversed(skips), strict=True):
+            x = block(x, skip)
+        refined = self.recon(x)
+        return x.with_features(torch.cat([refined.features, x.features], dim=1))

@@ -1,0 +1,133 @@
+"""Cylindrical voxelisation (Cylinder3D): points → (ρ, φ, z) cells, the 9 per-point features and
+the point↔voxel index maps. Grid size and bounds are configuration; nothing is densified."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True)
+class CylinderGrid:
+    """A cylindrical grid.
+
+    Attributes:
+        size: cells along (ρ, φ, z).
+        min_bound: lower bounds (ρ metres, φ radians, z metres).
+        max_bound: upper bounds; points outside are clamped into the edge cells.
+    """
+
+    size: tuple[int, int, int] = (480, 360, 32)
+    min_bound: tuple[float, float, float] = (3.0, -math.pi, -3.0)
+    max_bound: tuple[float, float, float] = (50.0, math.pi, 1.5)
+
+    def __post_init__(self) -> None:
+        if len(self.size) != 3 or min(self.size) < 1:
+            raise ValueError(f"grid size must be three positive ints, got {self.size}")
+        if any(hi <= lo for lo, hi in zip(self.min_bound, self.max_bound, strict=True)):
+            raise ValueError(f"grid bounds must satisfy min < max, got {self.min_bound}..{self.max_bound}")
+
+    @property
+    def interval(self) -> tuple[float, float, float]:
+        """Cell size along (ρ, φ, z) in metres / radians."""
+        bounds = zip(self.min_bound, self.max_bound, self.size, strict=True)
+        return tuple((hi - lo) / n for lo, hi, n in bounds)
+
+    def to_dict(self) -> dict:
+        return {"size": list(self.size), "min_bound": list(self.min_bound), "max_bound": list(self.max_bound)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> CylinderGrid:
+        return cls(tuple(int(v) for v in d["size"]), tuple(d["min_bound"]), tuple(d["max_bound"]))
+
+
+@dataclass
+class Voxelized:
+    """The voxelisation of a batch of point clouds.
+
+    Attributes:
+        features: float32 ``(N, 9)`` per point: (ρ, φ, z) relative to the cell centre, (ρ, φ, z),
+            (x, y), remission.
+        point_cells: int64 ``(N, 3)`` the cell of each point (clamped).
+        coords: int64 ``(M, 4)`` unique voxels (batch, iρ, iφ, iz), sorted by key.
+        point_to_voxel: int64 ``(N,)`` index into ``coords`` of each point.
+        batch_size: number of clouds.
+    """
+
+    features: torch.Tensor
+    point_cells: torch.Tensor
+    coords: torch.Tensor
+    point_to_voxel: torch.Tensor
+    batch_size: int
+
+    def voxel_to_points(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """CSR map from voxels to points.
+
+        Returns:
+            order: int64 ``(N,)`` point indices grouped by voxel.
+            offsets: int64 ``(M + 1,)``; voxel ``v`` owns ``order[offsets[v]:offsets[v + 1]]``.
+        """
+        order = torch.argsort(self.point_to_voxel, stable=True)
+        counts = torch.bincount(self.point_to_voxel, minlength=self.coords.shape[0])
+        offsets = torch.zeros(counts.numel() + 1, dtype=torch.int64, device=counts.device)
+        offsets[1:] = torch.cumsum(counts, 0)
+        return order, offsets
+
+
+def cylinder_features(points: torch.Tensor, grid: CylinderGrid) -> tuple[torch.Tensor, torch.Tensor]:
+    """Cells and the 9 input features of one cloud.
+
+    Args:
+        points: float ``(N, 4)`` x, y, z (metres), remission.
+        grid: the grid.
+
+    Returns:
+        cells: int64 ``(N, 3)`` clamped cell indices; features: float32 ``(N, 9)``.
+    """
+    pts = points.to(torch.float32)
+    x, y, z, r = pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 3]
+    pol = torch.stack([torch.sqrt(x * x + y * y), torch.atan2(y, x), z], dim=1)
+    lo = torch.tensor(grid.min_bound, dtype=torch.float32, device=pts.device)
+    hi = torch.tensor(grid.max_bound, dtype=torch.float32, device=pts.device)
+    step = torch.tensor(grid.interval, dtype=torch.float32, device=pts.device)
+    size = torch.tensor(grid.size, dtype=torch.int64, device=pts.device)
+    cells = torch.floor((torch.minimum(torch.maximum(pol, lo), hi) - lo) / step).to(torch.int64)
+    cells = torch.minimum(torch.clamp_min(cells, 0), size - 1)
+    centre = (cells.to(torch.float32) + 0.5) * step + lo
+    feats = torch.cat([pol - centre, pol, pts[:, :2], r[:, None]], dim=1)
+    return cells, feats
+
+
+def voxelize(clouds: list[torch.Tensor], grid: CylinderGrid) -> Voxelized:
+    """Voxelise a batch of clouds onto the cylindrical grid.
+
+    Args:
+        clouds: list of float ``(N_b, 4)`` tensors (x, y, z, remission), all on one device.
+        grid: the grid.
+
+    Returns:
+        The :class:`Voxelized` batch; points are concatenated in the order of ``clouds``.
+    """
+    cells_l, feats_l, batch_l = [], [], []
+    for b, pts in enumerate(clouds):
+        cells, feats = cylinder_features(pts, grid)
+        cells_l.append(cells)
+        feats_l.append(feats)
+        batch_l.append(torch.full((cells.shape[0],), b, dtype=torch.int64, device=cells.device))
+    cells = torch.cat(cells_l)
+    batch = torch.cat(batch_l)
+    s0, s1, s2 = grid.size
+    keys = ((batch * s0 + cells[:, 0]) * s1 + cells[:, 1]) * s2 + cells[:, 2]
+    ukeys, inverse = torch.unique(keys, sorted=True, return_inverse=True)
+    coords = torch.stack(
+        [ukeys // (s0 * s1 * s2), (ukeys // (s1 * s2)) % s0, (ukeys // s2) % s1, ukeys % s2], dim=1
+    )
+    return Voxelized(
+        features=torch.cat(feats_l),
+        point_cells=cells,
+        coords=coords,
+        point_to_voxel=inverse,
+        batch_size=len(clouds),
+    )

@@ -1,0 +1,132 @@
+"""Inference API used by the ``infer`` stage: points (or a 4D volume) → per-point semantic
+prediction, probabilities, offsets and instance features."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dsnet_core.errors import DataFormatError
+from dsnet_core.labels import LabelMap
+from dsnet_core.model.checkpoint import ModelCard, load_checkpoint
+from dsnet_core.model.network import DSNet
+
+
+@dataclass(frozen=True)
+class InferenceResult:
+    """Per-point outputs of one cloud (or one 4D volume).
+
+    Attributes:
+        sem: int64 ``(N,)`` predicted train id (argmax over classes 1..C-1; 0 is never predicted).
+        probs: float16 ``(N, C)`` softmax probabilities.
+        offsets: float32 ``(N, 3)`` metres, point → predicted instance centre.
+        features: float16 ``(N, D)`` instance features for the shifting module (D = 32).
+    """
+
+    sem: np.ndarray
+    probs: np.ndarray
+    offsets: np.ndarray
+    features: np.ndarray
+
+
+class Predictor:
+    """Runs a trained :class:`DSNet` on point clouds.
+
+    Args:
+        model: the network (put in eval mode here).
+        card: its model card.
+        device: ``"cpu"`` or ``"cuda"``.
+        threads: torch CPU threads for this process (one by default; None leaves it unchanged).
+    """
+
+    def __init__(
+        self, model: DSNet, card: ModelCard | None = None, device: str = "cpu", threads: int | None = 1
+    ):
+        if threads is not None and torch.device(device).type == "cpu":
+            torch.set_num_threads(threads)
+        self.device = torch.device(device)
+        self.model = model.to(self.device).eval()
+        self.card = card
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        path: str | Path,
+        device: str = "cpu",
+        threads: int | None = 1,
+        expect_label_map: LabelMap | None = None,
+    ) -> Predictor:
+        """Load a checkpoint folder (verified, see :func:`load_checkpoint`)."""
+        model, card = load_checkpoint(path, device=device, expect_label_map=expect_label_map)
+        return cls(model, card, device=device, threads=threads)
+
+    @property
+    def num_classes(self) -> int:
+        return self.model.config.num_classes
+
+    def predict(self, points: np.ndarray) -> InferenceResult:
+        """One cloud: float32 ``(N, 4)`` (x, y, z metres, remission) → :class:`InferenceResult`.
+
+        A 4D volume is passed the same way (aligned scans concatenated); split the result back by
+        the volume's per-point source-frame index.
+        """
+        return self.predict_batch([points])[0]
+
+    def predict_batch(self, clouds: list[np.ndarray]) -> list[InferenceResult]:
+        """Several clouds in one forward pass (batch index per cloud; no cross-talk)."""
+        tensors = []
+        for i, pts in enumerate(clouds):
+            arr = np.asarray(pts)
+            if arr.ndim != 2 or arr.shape[1] < 4 or not np.isfinite(arr[:, :4]).all():
+                raise DataFormatError(
+                    f"<cloud {i}>", f"expected finite float (N, 4) points, got shape {arr.shape}"
+                )
+            tensors.append(torch.as_tensor(arr[:, :4], dtype=torch.float32, device=self.device))
+        results: list[InferenceResult] = []
+        nonempty = [t for t in tensors if t.shape[0] > 0]
+        with torch.inference_mode():
+            out = self.model(nonempty) if nonempty else None
+        start = 0
+        for t in tensors:
+            n = t.shape[0]
+            if n == 0:
+                results.append(self._empty())
+                continue
+            sl = slice(start, start + n)
+            start += n
+            logits = out.logits[sl].float()
+            probs = torch.softmax(logits, dim=1)
+            sem = logits[:, 1:].argmax(dim=1) + 1
+            results.append(
+                InferenceResult(
+                    sem=sem.cpu().numpy().astype(np.int64),
+                    probs=probs.cpu().numpy().astype(np.float16),
+                    offsets=out.offsets[sl].float().cpu().numpy(),
+                    features=out.features[sl].cpu().numpy().astype(np.float16),
+                )
+            )
+        return results
+
+    def predict_iter(self, clouds: Iterable[np.ndarray], batch_size: int = 1) -> Iterator[InferenceResult]:
+        """Stream results for an iterable of clouds, ``batch_size`` clouds per forward pass."""
+        buf: list[np.ndarray] = []
+        for pts in clouds:
+            buf.append(pts)
+            if len(buf) == batch_size:
+                yield from self.predict_batch(buf)
+                buf = []
+        if buf:
+            yield from self.predict_batch(buf)
+
+    def _empty(self) -> InferenceResult:
+        c, d = self.num_classes, self.model.config.ins_dim
+        return InferenceResult(
+            sem=np.zeros(0, np.int64),
+            probs=np.zeros((0, c), np.float16),
+            offsets=np.zeros((0, 3), np.float32),
+            features=np.zeros((0, d), np.float16),
+        )

@@ -44,14 +44,14 @@ class StitchError(DsnetError):
 
 
 @dataclass(frozen=True)
-class Volume:
-    """One fused 4D volume: the stitcher's input.
+class VolumeLabels:
+    """The panoptic result of one 4D volume (after ``fuse``): the stitcher's input.
 
     Attributes:
         frames: ``(k,) int64`` absolute frame indices the volume covers, ascending and contiguous
             (frames without points are listed too).
-        frame: ``(N,) int64`` absolute frame index of each point.
-        point: ``(N,) int64`` index of each point in its source scan.
+        source_frame: ``(N,) int`` absolute frame index of each point (``align``'s array).
+        source_index: ``(N,) int`` index of each point in its source scan (``align``'s array).
         semantic: ``(N,) int`` train ids (0 = ignore).
         instance: ``(N,) int`` raw instance ids, 0 = none; local to this volume.
         thing: ``(N,) bool`` thing mask, or None to derive it from ``semantic``.
@@ -61,8 +61,8 @@ class Volume:
     """
 
     frames: np.ndarray
-    frame: np.ndarray
-    point: np.ndarray
+    source_frame: np.ndarray
+    source_index: np.ndarray
     semantic: np.ndarray
     instance: np.ndarray
     thing: np.ndarray | None = None
@@ -180,7 +180,7 @@ class Stitcher:
         self._tracks: dict[int, _Track] = {}
 
     # ------------------------------------------------------------------ stitching
-    def add_volume(self, volume: Volume) -> list[FinishedFrame]:
+    def add_volume(self, volume: VolumeLabels) -> list[FinishedFrame]:
         """Stitch one volume; return the frames it owns (first volume containing them), in order.
 
         Raises:
@@ -260,16 +260,16 @@ class Stitcher:
                     self._tracks[tid].conf_sum += float(scores[r]) * n
                     self._tracks[tid].conf_w += n
 
-    def _check(self, v: Volume) -> tuple[np.ndarray, ...]:
+    def _check(self, v: VolumeLabels) -> tuple[np.ndarray, ...]:
         frames = np.asarray(v.frames, dtype=np.int64)
-        frame = np.asarray(v.frame, dtype=np.int64)
-        point = np.asarray(v.point, dtype=np.int64)
+        frame = np.asarray(v.source_frame, dtype=np.int64)
+        point = np.asarray(v.source_index, dtype=np.int64)
         sem = np.asarray(v.semantic, dtype=np.int64)
         inst = np.asarray(v.instance, dtype=np.int64)
         n = frame.shape[0]
         if frames.ndim != 1 or frames.size == 0 or (np.diff(frames) != 1).any():
             raise StitchError(f"volume frames must be contiguous ascending indices, got {frames.tolist()}")
-        for name, arr in (("point", point), ("semantic", sem), ("instance", inst)):
+        for name, arr in (("source_index", point), ("semantic", sem), ("instance", inst)):
             if arr.shape != (n,):
                 raise StitchError(f"volume '{name}' has shape {arr.shape}, expected ({n},) like 'frame'")
         if n and (frame.min() < frames[0] or frame.max() > frames[-1]):

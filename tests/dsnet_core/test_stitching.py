@@ -1,12 +1,13 @@
 """Cross-volume id stitching: ownership, one-to-one matching, fresh ids, resume."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from dsnet_core.labels import load_label_map
-from dsnet_core.stitching import FinishedFrame, Stitcher, StitchError, Volume, match_ids, overlap_iou
+from dsnet_core.stitching import FinishedFrame, Stitcher, StitchError, VolumeLabels, match_ids, overlap_iou
 
 LM = load_label_map("semantic-kitti")
 ROAD, CAR, PERSON = 9, 1, 6
@@ -28,7 +29,7 @@ def scene(frames: list[dict[int, int]], n_stuff: int = 5) -> list[tuple[np.ndarr
     return out
 
 
-def volume(frames_data, start: int, k: int, relabel=None, scores=None) -> Volume:
+def volume(frames_data, start: int, k: int, relabel=None, scores=None) -> VolumeLabels:
     """A volume over frames start..start+k-1; raw ids = ``relabel(frame, gt id array)``.
 
     By default raw ids are the gt ids shifted by +100·(start+1), so they are local to the volume.
@@ -43,7 +44,7 @@ def volume(frames_data, start: int, k: int, relabel=None, scores=None) -> Volume
         inst.append(raw)
     frames = np.arange(start, min(start + k, len(frames_data)))
     cat = np.concatenate
-    return Volume(frames, cat(fr), cat(pt), cat(sem), cat(inst), scores=scores)
+    return VolumeLabels(frames, cat(fr), cat(pt), cat(sem), cat(inst), scores=scores)
 
 
 def run(frames_data, k: int, stride: int, stitcher=None, **kw) -> dict[int, np.ndarray]:
@@ -90,7 +91,7 @@ def test_first_volume_owns_the_overlap_frame():
     s = Stitcher(LM)
     first = s.add_volume(volume(data, 0, 2))
     v2 = volume(data, 1, 2, relabel=relabel)
-    v2 = Volume(v2.frames, v2.frame, v2.point, np.where(v2.semantic == CAR, PERSON, v2.semantic), v2.instance)
+    v2 = replace(v2, semantic=np.where(v2.semantic == CAR, PERSON, v2.semantic))
     second = s.add_volume(v2)
     assert [f.frame for f in first] == [0, 1] and [f.frame for f in second] == [2]
     assert ((first[1].label & 0xFFFF)[5:] == LM.learning_map_inv[CAR]).all()  # not overwritten
@@ -201,7 +202,7 @@ def test_empty_frames_and_empty_volume():
     # empty, so frame 4 starts another
     assert ids == [{1}, set(), {2}, set(), {3}, {3}]
     s = Stitcher(LM)
-    empty = Volume(np.array([0, 1]), *(np.zeros(0, np.int64) for _ in range(4)))
+    empty = VolumeLabels(np.array([0, 1]), *(np.zeros(0, np.int64) for _ in range(4)))
     res = s.add_volume(empty)
     assert [(f.frame, f.label.size) for f in res] == [(0, 0), (1, 0)]
     assert s.next_id == 1 and s.track_table().id.size == 0
@@ -220,12 +221,12 @@ def test_sequence_boundaries_and_order_errors():
     out = run(data, 1, 1)
     assert [int((out[f] >> 16)[5]) for f in range(4)] == [1, 2, 3, 4]
     with pytest.raises(StitchError, match="contiguous"):
-        Stitcher(LM).add_volume(Volume(np.array([0, 2]), *(np.zeros(0, np.int64) for _ in range(4))))
+        Stitcher(LM).add_volume(VolumeLabels(np.array([0, 2]), *(np.zeros(0, np.int64) for _ in range(4))))
     bad = volume(data, 0, 2)
     with pytest.raises(StitchError, match="'instance' has shape"):
-        Stitcher(LM).add_volume(Volume(bad.frames, bad.frame, bad.point, bad.semantic, bad.instance[:-1]))
+        Stitcher(LM).add_volume(replace(bad, instance=bad.instance[:-1]))
     with pytest.raises(StitchError, match=r"points 0\.\.n-1"):
-        Stitcher(LM).add_volume(Volume(bad.frames, bad.frame, bad.point * 2, bad.semantic, bad.instance))
+        Stitcher(LM).add_volume(replace(bad, source_index=bad.source_index * 2))
 
 
 def test_track_table():

@@ -1,0 +1,137 @@
+"""Deterministic farthest point sampling (FPS) of shifting seeds.
+
+The result equals the naive algorithm exactly (start at index 0; each step picks the point
+whose squared distance, in float64, to the already chosen set is largest; ties go to the lowest
+index). Speed comes from a k-d partition of the points into leaves with bounding boxes: a new
+sample can only lower the distances in leaves whose box is closer to it than the leaf's current
+largest distance, so most leaves are skipped once the samples are dense.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_LEAF_SIZE = 64
+
+
+def farthest_point_sampling(points: np.ndarray, n: int) -> np.ndarray:
+    """Pick ``min(n, M)`` points by farthest point sampling, starting at index 0.
+
+    Args:
+        points: float32 (M, 3) positions in metres (any real dtype is accepted).
+        n: number of samples wanted.
+
+    Returns:
+        int64 (min(n, M),) indices into ``points`` in selection order. When ``n >= M`` every
+        point is returned in its original order (``arange(M)``), as the reference does.
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (M, 3), got {points.shape}")
+    m = pts.shape[0]
+    if n >= m:
+        return np.arange(m, dtype=np.int64)
+    if n <= 0:
+        return np.zeros(0, dtype=np.int64)
+    if not np.isfinite(pts).all():
+        raise ValueError("points hold NaN or inf")
+    order, leaf_start = _kd_leaves(pts)
+    return _fps_leaves(pts[order], order.astype(np.int64), leaf_start, n)
+
+
+def _kd_leaves(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Permutation grouping the points into k-d leaves of at most ``_LEAF_SIZE`` points.
+
+    Returns:
+        (order int64 (M,), leaf_start int64 (L + 1,)): leaf ``l`` holds ``order[start[l]:start[l+1]]``.
+    """
+    order = np.arange(pts.shape[0], dtype=np.int64)
+    bounds = [0]
+    stack = [(0, pts.shape[0])]
+    while stack:
+        lo, hi = stack.pop()
+        if hi - lo <= _LEAF_SIZE:
+            bounds.append(hi)
+            continue
+        idx = order[lo:hi]
+        sub = pts[idx]
+        axis = int(np.argmax(sub.max(axis=0) - sub.min(axis=0)))
+        mid = (hi - lo) // 2
+        part = np.argpartition(sub[:, axis], mid, kind="introselect")
+        order[lo:hi] = idx[part]
+        # push the upper half first so leaves come out in ascending order
+        stack.append((lo + mid, hi))
+        stack.append((lo, lo + mid))
+    bounds_arr = np.sort(np.unique(np.asarray(bounds, dtype=np.int64)))
+    return order, bounds_arr
+
+
+@numba.njit(cache=True)
+def _fps_leaves(p: np.ndarray, orig: np.ndarray, start: np.ndarray, n: int) -> np.ndarray:
+    n_leaves = start.shape[0] - 1
+    m = p.shape[0]
+    lo = np.empty((n_leaves, 3))
+    hi = np.empty((n_leaves, 3))
+    for leaf in range(n_leaves):
+        for k in range(3):
+            lo[leaf, k] = np.inf
+            hi[leaf, k] = -np.inf
+        for i in range(start[leaf], start[leaf + 1]):
+            for k in range(3):
+                lo[leaf, k] = min(lo[leaf, k], p[i, k])
+                hi[leaf, k] = max(hi[leaf, k], p[i, k])
+    dist = np.full(m, np.inf)
+    leaf_max = np.full(n_leaves, np.inf)
+    leaf_arg = np.empty(n_leaves, dtype=np.int64)  # position (sorted order) of the leaf's farthest point
+    for leaf in range(n_leaves):
+        leaf_arg[leaf] = start[leaf]
+        best = orig[start[leaf]]
+        for i in range(start[leaf], start[leaf + 1]):
+            if orig[i] < best:
+                best = orig[i]
+                leaf_arg[leaf] = i
+    out = np.empty(n, dtype=np.int64)
+    # the first sample is original index 0
+    cur = 0
+    for i in range(m):
+        if orig[i] == 0:
+            cur = i
+    for s in range(n):
+        out[s] = orig[cur]
+        cx, cy, cz = p[cur, 0], p[cur, 1], p[cur, 2]
+        for leaf in range(n_leaves):
+            # squared distance from the new sample to the leaf's box: a lower bound for its points
+            lb = 0.0
+            for k in range(3):
+                c = p[cur, k]
+                if c < lo[leaf, k]:
+                    lb += (lo[leaf, k] - c) * (lo[leaf, k] - c)
+                elif c > hi[leaf, k]:
+                    lb += (c - hi[leaf, k]) * (c - hi[leaf, k])
+            if lb * (1.0 - 1e-9) >= leaf_max[leaf]:
+                continue
+            best_v = -1.0
+            best_i = -1
+            for i in range(start[leaf], start[leaf + 1]):
+                dx = p[i, 0] - cx
+                dy = p[i, 1] - cy
+                dz = p[i, 2] - cz
+                d = dx * dx + dy * dy + dz * dz
+                if d < dist[i]:
+                    dist[i] = d
+                v = dist[i]
+                if v > best_v or (v == best_v and orig[i] < orig[best_i]):
+                    best_v = v
+                    best_i = i
+            leaf_max[leaf] = best_v
+            leaf_arg[leaf] = best_i
+        best_v = -1.0
+        cur = -1
+        for leaf in range(n_leaves):
+            v = leaf_max[leaf]
+            i = leaf_arg[leaf]
+            if v > best_v or (v == best_v and orig[i] < orig[cur]):
+                best_v = v
+                cur = i
+    return out

@@ -67,6 +67,12 @@ def _print_summary(summary) -> None:
         console.print(hist)
 
 
+from flows.commands import label as _label  # noqa: E402
+
+app.command("label")(_label.label)
+app.command("status")(_label.status)
+
+
 def main() -> None:
     app()
 

@@ -68,12 +68,15 @@ def _print_summary(summary) -> None:
 
 
 # Command registrations: one line per command, bodies live in flows/commands/.
+from flows.commands import label as _label  # noqa: E402
 from flows.commands import synth as _synth  # noqa: E402
 from flows.commands.eval import eval_command  # noqa: E402
 
 app.command()(_synth.synth)
 app.command()(_synth.demo)
 app.command(name="eval")(eval_command)
+app.command("label")(_label.label)
+app.command("status")(_label.status)
 
 
 def main() -> None:

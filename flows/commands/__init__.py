@@ -1,0 +1,1 @@
+"""Bodies of the ``dsnet`` commands (registered in :mod:`flows.cli`)."""

@@ -1,0 +1,129 @@
+"""``dsnet label`` and ``dsnet status``. Heavy imports stay inside the bodies."""
+
+from __future__ import annotations
+
+import typer
+
+
+def label(
+    data: str = typer.Argument(..., help="Log root in the SemanticKITTI layout (holds sequences/)."),
+    run: str = typer.Option(..., "--run", help="Run store root: a folder or s3://bucket/prefix."),
+    sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
+    scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
+    stride: int = typer.Option(None, help="Step between volumes (default k-1, or 1 for k=1)."),
+    from_stage: str = typer.Option(None, help="Recompute this stage and everything downstream."),
+    force: bool = typer.Option(False, help="Recompute every stage."),
+    on_error: str = typer.Option("fail", help="fail: stop on a bad frame; skip: quarantine it and go on."),
+    workers: int = typer.Option(None, help="Run blocks on a local Dask cluster of N worker processes."),
+    dask_address: str = typer.Option(
+        None, help="Run blocks on an existing Dask scheduler (tcp://host:port)."
+    ),
+    block_size: int = typer.Option(25, help="Frames or volumes per task."),
+    lock_wait: float = typer.Option(0.0, help="Seconds to wait for another run's lock before failing."),
+) -> None:
+    """Label a log into a run store, resuming whatever is already done there."""
+    from flows.server import prefect_api, quiet_prefect_env
+
+    quiet_prefect_env()
+    if on_error not in ("fail", "skip"):
+        raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
+    if workers and dask_address:
+        raise typer.BadParameter("give --workers or --dask-address, not both")
+    from dsnet_core.errors import DsnetError
+    from storage.errors import StoreError
+
+    stages = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
+    options = {"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait}
+    seqs = sequences.split(",") if sequences else None
+    try:
+        with prefect_api():
+            from flows.label import label_dataset, task_runner
+
+            flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
+            with _progress_bars():
+                summary = flow(data, run, seqs, stages, options, from_stage, force)
+    except (DsnetError, StoreError, ValueError) as exc:
+        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+        raise typer.Exit(code=2) from None
+    _print_summary(summary)
+    typer.echo(f"wrote run store {run}")
+    if any(r["action"] == "failed" for r in summary):
+        raise typer.Exit(code=1)
+
+
+def status(root: str = typer.Argument(..., help="Run store root (folder or s3://…).")) -> None:
+    """Per sequence and stage: done / partial (x of y blocks) / stale / missing, with fingerprints."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from storage.errors import StoreError
+    from storage.run import RunStore
+    from tasks.registry import stage_order
+    from tasks.runner import stage_state
+
+    store = RunStore(root)
+    try:
+        run = store.read_run_config()
+    except StoreError as exc:
+        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+        raise typer.Exit(code=2) from None
+    table = Table(title=f"run store {store.uri} (last run {run.get('run_id')})")
+    for col in ("sequence", "stage", "state", "blocks", "items", "fingerprint", "seconds"):
+        table.add_column(col)
+    for seq in sorted(set(store.sequences()) | set(run.get("sequences", []))):
+        for stage in stage_order():
+            state, m, n_done = stage_state(store, seq, stage, run)
+            if state == "partial":
+                state = f"partial ({n_done} of {len(m.blocks)} blocks)"
+            table.add_row(
+                seq,
+                stage,
+                state,
+                "" if m is None else f"{n_done}/{len(m.blocks)}",
+                "" if m is None else str(m.n_items),
+                "" if m is None else m.fingerprint,
+                "" if m is None or not m.timings else f"{m.timings.get('wall_s', 0):.2f}",
+            )
+    Console(width=140).print(table)
+
+
+def _progress_bars():
+    from contextlib import contextmanager
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from flows.progress import add_listener, remove_listener
+
+    @contextmanager
+    def bars():
+        bars_by_stage = {}
+        with Progress(
+            TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
+        ) as progress:
+
+            def on_event(ev) -> None:
+                if ev.stage not in bars_by_stage:
+                    bars_by_stage[ev.stage] = progress.add_task(ev.stage, total=max(ev.total, 1))
+                tid = bars_by_stage[ev.stage]
+                progress.update(tid, total=max(ev.total, 1), completed=ev.done if ev.total else 1)
+
+            add_listener(on_event)
+            try:
+                yield
+            finally:
+                remove_listener(on_event)
+
+    return bars()
+
+
+def _print_summary(summary) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="label")
+    cols = ("sequence", "stage", "action", "blocks_run", "items", "points", "seconds", "fingerprint")
+    for col in cols:
+        table.add_column(col)
+    for row in summary:
+        table.add_row(*[str(row.get(c, "")) for c in cols])
+    Console(width=140).print(table)

@@ -1,0 +1,188 @@
+"""One root URI (a local path or ``s3://bucket/prefix``) and the few atomic operations the store needs.
+
+Atomicity, per backend:
+    local  a write goes to a hidden temporary file in the same folder and ``os.replace`` puts it in
+           place (atomic on POSIX); exclusive create is ``O_CREAT | O_EXCL``.
+    S3     a single PUT is atomic: readers see the old object or the new one, never a part. Exclusive
+           create is a conditional PUT (``If-None-Match: *``). A rename is a server-side copy then a
+           delete: the destination appears whole at once, so a temporary key that a reader ignores
+           (its name starts with ``.`` and does not end in ``.parquet``) may be left behind by a kill
+           between the two calls, never a half-written result.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import posixpath
+import uuid
+from pathlib import Path
+from typing import Any
+
+import fsspec
+
+from storage.errors import StoreError
+
+
+class RootFS:
+    """A store root. Every path argument is relative to the root, with ``/`` separators.
+
+    Args:
+        uri: local path or fsspec URL (``s3://bucket/run``).
+        storage_options: passed to fsspec (e.g. ``{"endpoint_url": ..., "key": ..., "secret": ...}``).
+    """
+
+    def __init__(self, uri: str | Path, storage_options: dict[str, Any] | None = None) -> None:
+        self.uri = str(uri)
+        self.storage_options = dict(storage_options or {})
+        self.fs, root = fsspec.core.url_to_fs(self.uri, **self.storage_options)
+        self.local = _is_local(self.fs)
+        self.root = str(Path(root).resolve()) if self.local else root.rstrip("/")
+        if self.local:
+            self.uri = self.root
+
+    # -- paths -------------------------------------------------------------------------------
+    def path(self, rel: str) -> str:
+        """Absolute path (no protocol) of ``rel`` for the underlying filesystem."""
+        return posixpath.join(self.root, rel) if rel else self.root
+
+    def url(self, rel: str) -> str:
+        """Full URL of ``rel`` (with protocol for remote stores), for zarr and pyarrow."""
+        if self.local:
+            return self.path(rel)
+        proto = self.fs.protocol[0] if isinstance(self.fs.protocol, tuple) else self.fs.protocol
+        return f"{proto}://{self.path(rel)}"
+
+    # -- reads -------------------------------------------------------------------------------
+    def read_bytes(self, rel: str) -> bytes | None:
+        """The object's bytes, or None when it does not exist."""
+        try:
+            if self.local:
+                return Path(self.path(rel)).read_bytes()
+            return self.fs.cat_file(self.path(rel))
+        except FileNotFoundError:
+            return None
+
+    def read_json(self, rel: str) -> dict | None:
+        data = self.read_bytes(rel)
+        if data is None:
+            return None
+        try:
+            return json.loads(data)
+        except json.JSONDecodeError as exc:
+            raise StoreError(self.url(rel), f"not valid JSON: {exc}") from exc
+
+    def exists(self, rel: str) -> bool:
+        if self.local:
+            return os.path.exists(self.path(rel))
+        return self.fs.exists(self.path(rel))
+
+    def listdir(self, rel: str) -> list[str]:
+        """Names (not paths) directly under ``rel``; empty when it does not exist."""
+        if self.local:
+            try:
+                return sorted(os.listdir(self.path(rel)))
+            except FileNotFoundError:
+                return []
+        try:
+            self.fs.invalidate_cache(self.path(rel))
+            return sorted(posixpath.basename(p.rstrip("/")) for p in self.fs.ls(self.path(rel), detail=False))
+        except FileNotFoundError:
+            return []
+
+    # -- writes ------------------------------------------------------------------------------
+    def write_bytes(self, rel: str, data: bytes) -> None:
+        """Write an object atomically (readers see the old or the new content, never a part)."""
+        path = self.path(rel)
+        if self.local:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            tmp = _tmp_name(path)
+            try:
+                with open(tmp, "wb") as f:
+                    f.write(data)
+                os.replace(tmp, path)
+            finally:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+        else:
+            self.fs.pipe_file(path, data)
+
+    def write_json(self, rel: str, obj: Any) -> None:
+        self.write_bytes(rel, json.dumps(obj, indent=1, sort_keys=True).encode())
+
+    def create_exclusive(self, rel: str, data: bytes) -> bool:
+        """Create ``rel`` only if it does not exist. Returns False when it already exists."""
+        path = self.path(rel)
+        if self.local:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            # write the content under a temporary name first, then hard-link it into place:
+            # link() fails if the target exists, and a reader never sees an empty lock file
+            tmp = _tmp_name(path)
+            with open(tmp, "wb") as f:
+                f.write(data)
+            try:
+                os.link(tmp, path)
+                return True
+            except FileExistsError:
+                return False
+            finally:
+                os.unlink(tmp)
+        try:
+            self.fs.pipe_file(path, data, mode="create")
+            return True
+        except (FileExistsError, OSError) as exc:
+            if _is_precondition_failed(exc):
+                return False
+            raise
+
+    def temp_name(self, rel: str) -> str:
+        """A sibling temporary name of ``rel`` that readers ignore (hidden, no ``.parquet`` suffix)."""
+        head, tail = posixpath.split(rel)
+        return posixpath.join(head, f".{tail}.{uuid.uuid4().hex[:12]}.tmp")
+
+    def rename(self, src: str, dst: str) -> None:
+        """Move ``src`` onto ``dst`` (atomic locally; copy-then-delete on S3, see the module doc)."""
+        if self.local:
+            os.makedirs(os.path.dirname(self.path(dst)), exist_ok=True)
+            os.replace(self.path(src), self.path(dst))
+        else:
+            self.fs.copy(self.path(src), self.path(dst))
+            self.fs.rm(self.path(src))
+
+    def remove(self, rel: str, recursive: bool = False) -> None:
+        """Delete a file or (with ``recursive``) a folder; missing paths are fine."""
+        try:
+            if self.local:
+                path = self.path(rel)
+                if os.path.isdir(path):
+                    if recursive:
+                        import shutil
+
+                        shutil.rmtree(path)
+                else:
+                    os.unlink(path)
+            else:
+                self.fs.rm(self.path(rel), recursive=recursive)
+        except FileNotFoundError:
+            pass
+
+    def makedirs(self, rel: str) -> None:
+        if self.local:
+            os.makedirs(self.path(rel), exist_ok=True)
+
+
+def _is_local(fs: fsspec.AbstractFileSystem) -> bool:
+    proto = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
+    return "file" in proto or "local" in proto
+
+
+def _tmp_name(path: str) -> str:
+    head, tail = os.path.split(path)
+    return os.path.join(head, f".{tail}.{uuid.uuid4().hex[:12]}.tmp")
+
+
+def _is_precondition_failed(exc: BaseException) -> bool:
+    if isinstance(exc, FileExistsError):
+        return True
+    text = f"{exc} {getattr(exc, '__cause__', '')}"
+    return "PreconditionFailed" in text or "412" in text

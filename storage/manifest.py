@@ -1,0 +1,72 @@
+"""Stage manifests and fingerprints: the manifest, not Prefect's cache, decides what is done.
+
+fingerprint = hash(stage, the stage's code version, its config, upstream fingerprints, input digest).
+A manifest is written atomically; ``status == "done"`` is written last, after every array, table
+and block fragment of the stage.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+
+def fingerprint(
+    stage: str, code_version: str, config: dict[str, Any], upstream: dict[str, str], inputs: str
+) -> str:
+    """A 16-hex-digit digest of everything that determines a stage's output.
+
+    Args:
+        stage: stage name.
+        code_version: the stage's own version string (bump it when its output changes).
+        config: the stage's resolved config (JSON-serialisable).
+        upstream: ``{stage: fingerprint}`` of the stages it reads.
+        inputs: digest of external inputs (e.g. the source files' sizes and times).
+    """
+    payload = json.dumps(
+        {"stage": stage, "version": code_version, "config": config, "upstream": upstream, "inputs": inputs},
+        sort_keys=True,
+        separators=(",", ":"),
+    )
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+class Manifest(BaseModel):
+    """The record of one (sequence, stage).
+
+    ``blocks`` lists the item indices of each block (the unit of work and of resume); a block is
+    complete when its fragment with this fingerprint exists.
+    """
+
+    stage: str
+    sequence: str
+    fingerprint: str
+    status: Literal["running", "done", "failed"]
+    code_version: str
+    config: dict[str, Any]
+    upstream: dict[str, str]
+    inputs: str
+    run_id: str
+    n_items: int = 0
+    blocks: list[list[int]] = Field(default_factory=list)
+    plan: dict[str, Any] = Field(default_factory=dict)
+    blocks_done: list[int] = Field(default_factory=list)
+    counts: dict[str, int] = Field(default_factory=dict)
+    timings: dict[str, float] = Field(default_factory=dict)
+    started: float = 0.0
+    finished: float | None = None
+    error: str | None = None
+
+
+class BlockFragment(BaseModel):
+    """What one block task leaves behind: written after all its items' arrays and ``done`` flags."""
+
+    fingerprint: str
+    block: int
+    items: list[int]
+    seconds: float
+    counts: dict[str, int] = Field(default_factory=dict)
+    rows: dict[str, list[dict[str, Any]]] = Field(default_factory=dict)

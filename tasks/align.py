@@ -1,0 +1,112 @@
+"""Stage ``align``: 4D volumes of k consecutive scans in the reference scan's frame (eq. 7).
+
+Windows of ``scans`` ok frames with step ``stride`` (default ``scans - 1`` so consecutive volumes
+share a frame for stitching; 1 for 3D). Quarantined frames are left out of every window.
+Ground-truth labels, when every frame has them, travel with the points.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from dsnet_core.align import build_volume, plan_windows
+from dsnet_core.errors import PoseFormatError
+from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.ingest import frame_checksum
+
+
+class AlignConfig(StageConfig):
+    """Window settings.
+
+    Attributes:
+        scans: k, scans per volume (1 = 3D).
+        stride: step between windows' first scans; default ``max(scans - 1, 1)``.
+    """
+
+    scans: int = Field(1, ge=1, le=16)
+    stride: int | None = Field(None, ge=1)
+
+    @model_validator(mode="after")
+    def _resolve_stride(self) -> AlignConfig:
+        if self.stride is None:
+            object.__setattr__(self, "stride", max(self.scans - 1, 1))
+        if self.stride > self.scans:
+            raise ValueError(f"stride {self.stride} > scans {self.scans} would skip frames")
+        return self
+
+
+class AlignStage(Stage):
+    name = "align"
+    upstream = ("ingest",)
+    version = "1"
+    Config = AlignConfig
+
+    def plan(self, ctx: StageContext) -> Plan:
+        table = ctx.frames
+        ok = np.asarray(table["status"].to_pylist()) == "ok"
+        index = np.asarray(table["index"].to_numpy())[ok]
+        n_points = np.asarray(table["n_points"].to_numpy())[ok]
+        has_labels = bool(ok.any()) and all(np.asarray(table["has_labels"].to_pylist())[ok])
+        windows = [
+            [int(index[p]) for p in w] for w in plan_windows(len(index), ctx.config.scans, ctx.config.stride)
+        ]
+        by_frame = dict(zip(index.tolist(), n_points.tolist(), strict=True))
+        sizes = [int(sum(by_frame[f] for f in w)) for w in windows]
+        return Plan(
+            n_items=len(windows),
+            max_points=max(sizes, default=0),
+            omit=() if has_labels else ("labels",),
+            meta={"windows": windows, "n_points": sizes, "labels": has_labels},
+        )
+
+    def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
+        reader = ctx.reader
+        refs = reader.frames(ctx.sequence)
+        table = ctx.frames.to_pydict()
+        rows = {idx: {k: table[k][r] for k in table} for r, idx in enumerate(table["index"])}
+        with_labels = ctx.plan["labels"]
+        cache: dict[int, tuple] = {}
+
+        def load(f: int):
+            if f not in cache:
+                scan = reader.scan(refs[f])
+                labels = reader.labels(refs[f]) if with_labels else None
+                if frame_checksum(scan, labels) != rows[f]["checksum"]:
+                    raise PoseFormatError(refs[f].scan_path, "frame changed since ingest; rerun ingest")
+                cache[f] = (scan, labels)
+            return cache[f]
+
+        for item in items:
+            window = ctx.plan["windows"][item]
+            poses = [rows[f]["pose"] for f in window]
+            if len(window) > 1 and any(p is None for p in poses):
+                raise PoseFormatError(
+                    refs[window[-1]].scan_path.parent.parent,
+                    f"align with scans={len(window)} needs poses; the log has none",
+                )
+            poses = [np.eye(4) if p is None else np.asarray(p, np.float64).reshape(4, 4) for p in poses]
+            data = [load(f) for f in window]
+            vol = build_volume(
+                [d[0] for d in data], poses, window, [d[1] for d in data] if with_labels else None
+            )
+            for f in list(cache):  # keep only the frames the next window may share
+                if f < window[0] + ctx.config.stride:
+                    del cache[f]
+            arrays = {
+                "points": vol.points,
+                "source_frame": vol.source_frame,
+                "source_index": vol.source_index,
+            }
+            if with_labels:
+                arrays["labels"] = vol.labels
+            n = int(vol.points.shape[0])
+            yield ItemResult(
+                item,
+                arrays=arrays,
+                n_points=n,
+                rows={"volumes": [{"index": item, "ref_frame": window[-1], "frames": window, "n_points": n}]},
+                counts={"volumes": 1, "points": n},
+            )

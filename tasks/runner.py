@@ -1,0 +1,245 @@
+"""The shared stage runner: fingerprint, skip / resume / clear, block execution, finalisation.
+
+Plain functions (no Prefect): the flows wrap :func:`run_block` in a task; tests and benchmarks call
+them directly. Callers hold the (sequence, stage) locks of the stage and its downstream stages.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from storage.errors import LockLostError, StoreError
+from storage.manifest import BlockFragment, Manifest, fingerprint
+from storage.run import RunStore
+from tasks.base import RunOptions, StageContext
+from tasks.registry import STAGES, downstream_of
+
+
+@dataclass(frozen=True)
+class BlockJob:
+    """One task's work: small and picklable (Dask ships it to a worker)."""
+
+    root: str
+    storage_options: dict[str, Any]
+    sequence: str
+    stage: str
+    fingerprint: str
+    run_id: str
+    block: int
+    items: tuple[int, ...]
+
+
+@dataclass
+class Decision:
+    """What to do with one (sequence, stage)."""
+
+    action: str  # "skip" | "resume" | "fresh"
+    fingerprint: str
+    manifest: Manifest
+    jobs: list[BlockJob] = field(default_factory=list)
+
+
+def resolved_config(stage: str, run: dict[str, Any]) -> dict[str, Any]:
+    """The stage's config from the run config, validated and with defaults filled in."""
+    cfg = STAGES[stage].Config.model_validate(run.get("stages", {}).get(stage, {}))
+    return cfg.model_dump(mode="json")
+
+
+def make_context(
+    store: RunStore, sequence: str, stage: str, run: dict, plan: dict | None = None
+) -> StageContext:
+    spec = STAGES[stage]
+    return StageContext(
+        store=store,
+        sequence=sequence,
+        config=spec.Config.model_validate(resolved_config(stage, run)),
+        run=run,
+        options=RunOptions.model_validate(run.get("options", {})),
+        plan=plan or {},
+    )
+
+
+def upstream_fingerprints(store: RunStore, sequence: str, stage: str) -> dict[str, str]:
+    """Fingerprints of the finished upstream stages. Raises StoreError if one is not done."""
+    out = {}
+    for up in STAGES[stage].upstream:
+        m = store.read_manifest(sequence, up)
+        if m is None or m.status != "done":
+            raise StoreError(store.root.url(store.stage_rel(sequence, up)), f"stage {up!r} is not done")
+        out[up] = m.fingerprint
+    return out
+
+
+def prepare_stage(
+    store: RunStore, sequence: str, stage: str, run: dict, run_id: str, force: bool = False
+) -> Decision:
+    """Decide skip / resume / fresh; on fresh, clear the stage and its downstream and plan it."""
+    spec = STAGES[stage]
+    ctx = make_context(store, sequence, stage, run)
+    config = resolved_config(stage, run)
+    upstream = upstream_fingerprints(store, sequence, stage)
+    inputs = spec.inputs(ctx)
+    fp = fingerprint(stage, spec.version, config, upstream, inputs)
+    old = store.read_manifest(sequence, stage)
+    if old is not None and old.fingerprint == fp and not force:
+        if old.status == "done":
+            return Decision("skip", fp, old)
+        done = store.completed_blocks(sequence, stage, fp)
+        jobs = [
+            _job(store, sequence, stage, fp, run_id, b, items)
+            for b, items in enumerate(old.blocks)
+            if b not in done
+        ]
+        old.status, old.run_id, old.error = "running", run_id, None
+        store.write_manifest(old)
+        return Decision("resume", fp, old, jobs)
+    for name in [stage, *downstream_of(stage)]:
+        store.clear_stage(sequence, name)
+    plan = spec.plan(ctx)
+    if spec.contract.arrays:
+        store.create_arrays(sequence, stage, plan.n_items, plan.max_points, plan.omit)
+    size = max(1, RunOptions.model_validate(run.get("options", {})).block_size)
+    blocks = [list(range(i, min(i + size, plan.n_items))) for i in range(0, plan.n_items, size)]
+    manifest = Manifest(
+        stage=stage,
+        sequence=sequence,
+        fingerprint=fp,
+        status="running",
+        code_version=spec.version,
+        config=config,
+        upstream=upstream,
+        inputs=inputs,
+        run_id=run_id,
+        n_items=plan.n_items,
+        blocks=blocks,
+        plan={"max_points": plan.max_points, "omit": list(plan.omit), **plan.meta},
+        started=time.time(),
+    )
+    store.write_manifest(manifest)
+    jobs = [_job(store, sequence, stage, fp, run_id, b, items) for b, items in enumerate(blocks)]
+    return Decision("fresh", fp, manifest, jobs)
+
+
+def _job(store: RunStore, sequence: str, stage: str, fp: str, run_id: str, b: int, items) -> BlockJob:
+    return BlockJob(store.uri, store.storage_options, sequence, stage, fp, run_id, b, tuple(items))
+
+
+def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
+    """Compute one block: items' arrays (``done`` last), then the block fragment. Returns a small dict."""
+    t0 = time.perf_counter()
+    store = store or RunStore(job.root, job.storage_options)
+    manifest = store.read_manifest(job.sequence, job.stage)
+    if manifest is None or manifest.fingerprint != job.fingerprint:
+        raise StoreError(
+            store.root.url(store.stage_rel(job.sequence, job.stage)), "stage changed under this block"
+        )
+    run = store.read_run_config(job.run_id)
+    ctx = make_context(store, job.sequence, job.stage, run, manifest.plan)
+    spec = STAGES[job.stage]
+    arrays = store.arrays(job.sequence, job.stage, read_only=False) if spec.contract.arrays else None
+    rows: dict[str, list[dict]] = {}
+    counts: dict[str, int] = {}
+    for res in spec.run_block(ctx, list(job.items)):
+        if arrays is not None:
+            arrays.write_item(res.index, res.arrays, res.n_points)
+        for table, rs in res.rows.items():
+            rows.setdefault(table, []).extend(rs)
+        for key, n in res.counts.items():
+            counts[key] = counts.get(key, 0) + n
+    _check_lock(store, job)
+    frag = BlockFragment(
+        fingerprint=job.fingerprint,
+        block=job.block,
+        items=list(job.items),
+        seconds=time.perf_counter() - t0,
+        counts=counts,
+        rows=rows,
+    )
+    store.write_fragment(job.sequence, job.stage, frag)
+    return {
+        "sequence": job.sequence,
+        "stage": job.stage,
+        "block": job.block,
+        "seconds": frag.seconds,
+        **counts,
+    }
+
+
+def _check_lock(store: RunStore, job: BlockJob) -> None:
+    rel = f"{store.stage_rel(job.sequence, job.stage)}/lock.json"
+    holder = store.root.read_json(rel)
+    if holder is not None and holder.get("run_id") != job.run_id:
+        raise LockLostError(store.root.url(rel), f"now held by run {holder.get('run_id')}; not writing block")
+
+
+def finalize_stage(store: RunStore, sequence: str, stage: str, fp: str) -> Manifest:
+    """Gather the block fragments into the tables and write the manifest as done (last)."""
+    manifest = store.read_manifest(sequence, stage)
+    if manifest is None or manifest.fingerprint != fp:
+        raise StoreError(store.root.url(store.stage_rel(sequence, stage)), "manifest changed before finalise")
+    frags = store.fragments(sequence, stage, fp)
+    missing = sorted(set(range(len(manifest.blocks))) - set(frags))
+    if missing:
+        raise StoreError(store.root.url(store.stage_rel(sequence, stage)), f"blocks {missing} are not done")
+    ordered = [frags[b] for b in sorted(frags)]
+    for spec in STAGES[stage].contract.tables:
+        rows = [r for f in ordered for r in f.rows.get(spec.name, [])]
+        rows.sort(key=lambda r: r.get("index", 0))
+        store.write_table(sequence, stage, spec.name, rows)
+    counts: dict[str, int] = {}
+    for f in ordered:
+        for key, n in f.counts.items():
+            counts[key] = counts.get(key, 0) + n
+    manifest.counts = counts
+    manifest.blocks_done = sorted(frags)
+    manifest.finished = time.time()
+    manifest.timings = {
+        "wall_s": manifest.finished - manifest.started,
+        "block_s": sum(f.seconds for f in ordered),
+    }
+    manifest.status = "done"
+    store.write_manifest(manifest)
+    return manifest
+
+
+def mark_failed(store: RunStore, sequence: str, stage: str, fp: str, error: str) -> None:
+    m = store.read_manifest(sequence, stage)
+    if m is not None and m.fingerprint == fp and m.status != "done":
+        m.status, m.error = "failed", error[:2000]
+        store.write_manifest(m)
+
+
+def run_stage_plain(
+    store: RunStore, sequence: str, stage: str, run: dict, run_id: str, force: bool = False
+) -> Manifest:
+    """Prepare, run every block in a loop, finalise (no Prefect, no locks): tests and benchmarks."""
+    decision = prepare_stage(store, sequence, stage, run, run_id, force)
+    if decision.action == "skip":
+        return decision.manifest
+    for job in decision.jobs:
+        run_block(job, store)
+    return finalize_stage(store, sequence, stage, decision.fingerprint)
+
+
+def stage_state(
+    store: RunStore, sequence: str, stage: str, run: dict | None = None
+) -> tuple[str, Manifest | None, int]:
+    """(state, manifest, finished blocks) for ``dsnet status``, from the store alone.
+
+    state: ``done``; ``partial`` (running/failed); ``stale`` (an upstream stage now has another
+    fingerprint, or the run config asks for another config); ``missing``.
+    """
+    m = store.read_manifest(sequence, stage)
+    if m is None:
+        return "missing", None, 0
+    if m.status != "done":
+        return "partial", m, len(store.completed_blocks(sequence, stage, m.fingerprint))
+    for up, fp in m.upstream.items():
+        um = store.read_manifest(sequence, up)
+        if um is None or um.fingerprint != fp:
+            return "stale", m, len(m.blocks)
+    if run is not None and resolved_config(stage, run) != m.config:
+        return "stale", m, len(m.blocks)
+    return "done", m, len(m.blocks)

@@ -1,0 +1,67 @@
+"""label-dataset on a 2-sequence log through a real Prefect server: run, no-op rerun, --scans change."""
+
+import numpy as np
+import pytest
+
+from storage.run import RunStore
+from tests.logs import make_log
+
+
+@pytest.fixture(scope="module")
+def two_seq_log(tmp_path_factory):
+    return make_log(tmp_path_factory.mktemp("log"), ("00", "01"), n_frames=6)
+
+
+def _actions(summary):
+    return {(r["sequence"], r["stage"]): r["action"] for r in summary}
+
+
+def test_label_dataset_resumes_exactly(prefect_api_url, two_seq_log, tmp_path):
+    from flows.label import label_dataset
+
+    root = str(tmp_path / "run")
+    opts = {"block_size": 2}
+    first = label_dataset(str(two_seq_log), root, None, {"align": {"scans": 2}}, opts)
+    assert _actions(first) == {(s, st): "fresh" for s in ("00", "01") for st in ("ingest", "align")}
+    store = RunStore(root)
+    fps = {
+        (s, st): store.read_manifest(s, st).fingerprint for s in ("00", "01") for st in ("ingest", "align")
+    }
+    arrays = store.arrays("01", "align")
+    assert arrays.done().all() and arrays.n_items == 5  # windows of 2 with stride 1 over 6 frames
+
+    again = label_dataset(str(two_seq_log), root, None, {"align": {"scans": 2}}, opts)
+    assert set(_actions(again).values()) == {"skip"} and all(r["blocks_run"] == 0 for r in again)
+
+    third = label_dataset(str(two_seq_log), root, ["00", "01"], {"align": {"scans": 3}}, opts)
+    acts = _actions(third)
+    assert acts[("00", "ingest")] == acts[("01", "ingest")] == "skip"
+    assert acts[("00", "align")] == acts[("01", "align")] == "fresh"
+    assert store.read_manifest("00", "ingest").fingerprint == fps[("00", "ingest")]
+    assert store.read_manifest("00", "align").fingerprint != fps[("00", "align")]
+    assert store.read_manifest("00", "align").plan["windows"] == [[0, 1, 2], [2, 3, 4], [3, 4, 5]]
+
+    forced = label_dataset(str(two_seq_log), root, ["00"], {"align": {"scans": 3}}, opts, from_stage="align")
+    assert _actions(forced) == {("00", "ingest"): "skip", ("00", "align"): "fresh"}
+    vol = store.arrays("00", "align").read_item(0)
+    assert set(np.unique(vol["source_frame"])) == {0, 1, 2}
+
+
+def test_label_sequence_and_artifacts(prefect_api_url, two_seq_log, tmp_path):
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.filters import ArtifactFilter, ArtifactFilterKey
+
+    from flows.label import label_sequence
+
+    summary = label_sequence(str(two_seq_log), str(tmp_path / "run"), "01")
+    assert _actions(summary) == {("01", "ingest"): "fresh", ("01", "align"): "fresh"}
+    with get_client(sync_client=True) as client:
+        for key, kind in (
+            ("label-summary", "table"),
+            ("label-report", "markdown"),
+            ("label-progress", "progress"),
+        ):
+            arts = client.read_artifacts(artifact_filter=ArtifactFilter(key=ArtifactFilterKey(any_=[key])))
+            assert arts and arts[0].type == kind
+    progress = [a for a in arts if a.type == "progress"]
+    assert progress[0].data == 100.0

@@ -9,7 +9,15 @@ import numpy as np
 
 from dsnet_core.synth import templates
 from dsnet_core.synth.primitives import BOX, Part, PrimitiveBuilder
-from dsnet_core.synth.road import OTHER_GROUND, TERRAIN, GroundLayout, Road
+from dsnet_core.synth.road import (
+    OTHER_GROUND,
+    PARKING,
+    SIDEWALK,
+    SIDEWALK_END,
+    TERRAIN,
+    GroundLayout,
+    Road,
+)
 
 BUILDING, FENCE, VEGETATION, TRUNK, POLE, TRAFFIC_SIGN, OTHER_OBJECT = 50, 51, 70, 71, 80, 81, 99
 SIDES = (1.0, -1.0)  # side 0 is the left (d > 0), side 1 the right
@@ -47,38 +55,44 @@ class Street:
 
 
 def make_layout(rng: np.random.Generator, s_lo: float, s_hi: float) -> Street:
-    """Draw lanes, parking strips, sidewalk widths and lots over ``[s_lo, s_hi]`` (1 m bins)."""
+    """Draw lanes, kerbside strips (parking bays between grass or paved bulb-outs), grass strips,
+    sidewalks and lots over ``[s_lo, s_hi]`` (1 m bins). Curb lines are straight along each side."""
     lanes = int(rng.choice([1, 2], p=[0.6, 0.4]))
     lane_w = float(rng.uniform(3.0, 3.6))
     n = int(np.ceil(s_hi - s_lo)) + 1
-    edges = np.zeros((2, 3, n))
-    outer = np.full((2, n), TERRAIN, dtype=np.int32)
+    edges = np.zeros((2, 4, n))
+    classes = np.full((2, 2, n), TERRAIN, dtype=np.int32)
     bins_s = s_lo + np.arange(n) + 0.5
     lots: list[Lot] = []
     parking: list[tuple[int, float, float]] = []
     for side in range(2):
-        road_edge = lanes * lane_w + 0.3
-        edges[side, 0] = road_edge
-        edges[side, 1] = road_edge
+        widths = [
+            lanes * lane_w + 0.3,
+            rng.uniform(2.1, 2.5) if rng.random() < 0.85 else 0.0,
+            rng.uniform(1.0, 2.5) if rng.random() < 0.4 else 0.0,
+            rng.uniform(2.5, 4.0),
+        ]
+        edges[side] = np.cumsum(widths)[:, None]
         s = s_lo
         while s < s_hi:
-            length = rng.uniform(15.0, 70.0)
-            if rng.random() < 0.55:
-                width = rng.uniform(2.1, 2.5)
+            sel = (bins_s >= s) & (bins_s < s + 80.0)
+            classes[side, 0, sel] = TERRAIN if rng.random() < 0.6 else SIDEWALK
+            if widths[1] > 0 and rng.random() < 0.7:
+                length = rng.uniform(15.0, 70.0)
                 sel = (bins_s >= s) & (bins_s < s + length)
-                edges[side, 1, sel] = road_edge + width
+                classes[side, 0, sel] = PARKING
                 parking.append((side, s, min(s + length, s_hi)))
-            s += length + rng.uniform(5.0, 30.0)
-        edges[side, 2] = edges[side, 1] + rng.uniform(2.5, 4.0)
+                s += length
+            s += rng.uniform(4.0, 25.0)
         s = s_lo
         while s < s_hi:
             length = rng.uniform(12.0, 45.0)
             kind = str(rng.choice(["building", "park", "field", "paved"], p=[0.5, 0.2, 0.15, 0.15]))
             sel = (bins_s >= s) & (bins_s < s + length)
-            outer[side, sel] = OTHER_GROUND if kind == "paved" or rng.random() < 0.3 else TERRAIN
+            classes[side, 1, sel] = OTHER_GROUND if kind == "paved" or rng.random() < 0.3 else TERRAIN
             lots.append(Lot(side, s, min(s + length, s_hi), kind))
             s += length
-    return Street(GroundLayout(s_lo, 1.0, edges, outer, lanes, lane_w), lots, parking)
+    return Street(GroundLayout(s_lo, 1.0, edges, classes, lanes, lane_w), lots, parking)
 
 
 class StuffPlacer:
@@ -118,37 +132,44 @@ class StuffPlacer:
         lay = self.street.layout
         for lot in self.street.lots:
             getattr(self, f"_lot_{lot.kind}")(
-                lot, SIDES[lot.side], lay.edge(lot.side, 2, (lot.s0 + lot.s1) / 2)
+                lot, SIDES[lot.side], lay.edge(lot.side, SIDEWALK_END, (lot.s0 + lot.s1) / 2)
             )
         for side, sign in enumerate(SIDES):
             self._sidewalk(side, sign)
         return self.out
 
     def _sidewalk(self, side: int, sign: float) -> None:
+        """Street lights and signs at the curb, trees on grass strips and kerbside bays, bins."""
         rng, lay = self.rng, self.street.layout
-        s, s_hi = lay.s0, lay.s0 + lay.edges.shape[2] * lay.ds
-        next_sign = s + rng.uniform(5.0, 60.0)
-        trees = rng.random() < 0.5
+        e = lay.edges[side, :, 0]  # curb lines are straight along a side
+        s_lo, s_hi = lay.s0, lay.s0 + lay.edges.shape[2] * lay.ds
+        s = s_lo + rng.uniform(0.0, 30.0)
         while s < s_hi:
+            if self.occ.take(s, sign * (e[1] + 0.4), 0.4):
+                self.place(templates.streetlight(rng), s, sign * (e[1] + 0.4), POLE, np.pi / 2 * sign)
             s += rng.uniform(22.0, 40.0)
-            curb = lay.edge(side, 1, s)
-            if self.occ.take(s, sign * (curb + 0.5), 0.4):
-                self.place(templates.streetlight(rng), s, sign * (curb + 0.5), POLE, np.pi / 2 * sign)
-            if trees:
-                for k in (1, 2):
-                    self.tree(s + k * rng.uniform(6.0, 9.0), sign * (curb + 0.9))
-            if s > next_sign:
-                next_sign = s + rng.uniform(20.0, 80.0)
-                pole, plate = templates.sign(rng)
-                d = sign * (curb + 0.35)
-                if self.occ.take(s + 3.0, d, 0.4):
-                    self.place(pole, s + 3.0, d, POLE)
-                    self.place(plate, s + 3.0, d, TRAFFIC_SIGN)
-            if rng.random() < 0.3:
-                d = sign * (lay.edge(side, 2, s) - 0.5)
-                if self.occ.take(s + 10.0, d, 0.5):
-                    box = Part(BOX, (0.0, 0.0, 0.55), (0.3, 0.3, 0.55), rng.uniform(0.1, 0.5))
-                    self.place([box], s + 10.0, d, OTHER_OBJECT)
+        s = s_lo + rng.uniform(5.0, 40.0)
+        while s < s_hi:
+            pole, plate = templates.sign(rng)
+            if self.occ.take(s, sign * (e[1] + 0.3), 0.4):
+                self.place(pole, s, sign * (e[1] + 0.3), POLE)
+                self.place(plate, s, sign * (e[1] + 0.3), TRAFFIC_SIGN)
+            s += rng.uniform(8.0, 40.0)
+        lawn = e[2] - e[1] > 0.8
+        s = s_lo + rng.uniform(0.0, 8.0)
+        while s < s_hi:
+            if lawn:
+                self.tree(s, sign * (e[1] + e[2]) / 2)
+            elif (lay.classes[side, 0, [lay.bin(s - 2), lay.bin(s + 2)]] == TERRAIN).all():
+                self.tree(s, sign * (e[0] + e[1]) / 2)
+            s += rng.uniform(7.0, 13.0)
+        s = s_lo + rng.uniform(0.0, 30.0)
+        while s < s_hi:
+            d = sign * (e[3] - 0.5)
+            if self.occ.take(s, d, 0.5):
+                box = Part(BOX, (0.0, 0.0, 0.55), (0.3, 0.3, 0.55), rng.uniform(0.1, 0.5))
+                self.place([box], s, d, OTHER_OBJECT)
+            s += rng.uniform(20.0, 80.0)
 
     def _lot_building(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
         rng = self.rng

@@ -1,9 +1,16 @@
 """Ray casting kernels (numba, compiled once and cached on disk).
 
-Rays are cast in world coordinates against the ground (road at z = 0, sidewalks and beyond raised by
-the curb, classes looked up in Frenet coordinates) and against every primitive; the nearest hit wins.
-Primitives are culled per ray by a world-azimuth bin table and an elevation interval, and visited in
-order of their nearest possible distance so the search stops as soon as nothing closer can exist.
+Rays are cast in world coordinates against the ground (road at z = 0, lawns, sidewalks and beyond
+raised by the curb, classes looked up in Frenet coordinates) and against every primitive; the nearest
+hit wins. Primitives are culled per ray by a world-azimuth bin table and an elevation interval, and
+visited in order of their nearest possible distance so the search stops as soon as nothing closer
+can exist.
+
+Argument bundles (tuples, so the kernels keep short signatures):
+    prims  = (kind, center, yaw, half, semantic, instance, reflectivity)  -- see PrimitiveSet
+    cull   = (near, el_lo, el_hi, start, items)                            -- from bin_primitives
+    ground = (s raster, d raster, meta, edges, classes, lanes) with
+             meta = [x0, y0, res, s0, ds, lane width]                      -- see GroundLayout
 """
 
 from __future__ import annotations
@@ -32,67 +39,67 @@ for _k, _v in _GROUND_REFL.items():
 
 
 @nb.njit(cache=True)
-def _frenet(x, y, grid_s, grid_d, x0, y0, res):
+def _frenet(x, y, g):
+    """Bilinear lookup of Frenet (s, d) at world (x, y); NaN outside the raster."""
+    grid_s, grid_d, meta = g[0], g[1], g[2]
     ny, nx = grid_s.shape
-    fx = (x - x0) / res - 0.5
-    fy = (y - y0) / res - 0.5
+    fx = (x - meta[0]) / meta[2] - 0.5
+    fy = (y - meta[1]) / meta[2] - 0.5
     if fx < 0.0 or fy < 0.0 or fx >= nx - 1 or fy >= ny - 1:
         return math.nan, math.nan
     j = int(fx)
     i = int(fy)
     ax = fx - j
     ay = fy - i
-    s = (1 - ay) * ((1 - ax) * grid_s[i, j] + ax * grid_s[i, j + 1]) + ay * (
-        (1 - ax) * grid_s[i + 1, j] + ax * grid_s[i + 1, j + 1]
-    )
-    d = (1 - ay) * ((1 - ax) * grid_d[i, j] + ax * grid_d[i, j + 1]) + ay * (
-        (1 - ax) * grid_d[i + 1, j] + ax * grid_d[i + 1, j + 1]
-    )
+    w00, w01, w10, w11 = (1 - ay) * (1 - ax), (1 - ay) * ax, ay * (1 - ax), ay * ax
+    s = w00 * grid_s[i, j] + w01 * grid_s[i, j + 1] + w10 * grid_s[i + 1, j] + w11 * grid_s[i + 1, j + 1]
+    d = w00 * grid_d[i, j] + w01 * grid_d[i, j + 1] + w10 * grid_d[i + 1, j] + w11 * grid_d[i + 1, j + 1]
     return s, d
 
 
 @nb.njit(cache=True)
-def _zone(s, d, lay_s0, lay_ds, edges, outer, lanes, lane_w):
+def _zone(s, d, g):
     """(raw class, raised) of the ground at Frenet point (s, d)."""
     if math.isnan(s):
         return TERRAIN, True
+    meta, edges, classes, lanes = g[2], g[3], g[4], g[5]
     side = 0 if d >= 0.0 else 1
     ad = abs(d)
-    k = int((s - lay_s0) / lay_ds)
-    k = min(max(k, 0), edges.shape[2] - 1)
+    k = min(max(int((s - meta[3]) / meta[4]), 0), edges.shape[2] - 1)
     if ad < edges[side, 0, k]:
         hw = 0.5 * MARKING_WIDTH
         dashed = (s % DASH_PERIOD) < DASH_ON
         if ad < hw and (dashed or lanes > 1):
             return LANE_MARKING, False
         for m in range(1, lanes):
-            if abs(ad - m * lane_w) < hw and dashed:
+            if abs(ad - m * meta[5]) < hw and dashed:
                 return LANE_MARKING, False
         if abs(ad - (edges[side, 0, k] - 0.3)) < hw:
             return LANE_MARKING, False
         return ROAD, False
     if ad < edges[side, 1, k]:
-        return PARKING, False
+        strip = classes[side, 0, k]
+        return strip, strip != PARKING
     if ad < edges[side, 2, k]:
+        return TERRAIN, True
+    if ad < edges[side, 3, k]:
         return SIDEWALK, True
-    return outer[side, k], True
+    return classes[side, 1, k], True
 
 
 @nb.njit(cache=True)
-def _ground(
-    ox, oy, oz, dx, dy, dz, grid_s, grid_d, gx0, gy0, gres, lay_s0, lay_ds, edges, outer, lanes, lane_w
-):
+def _ground(ox, oy, oz, dx, dy, dz, g):
     """(t, raw class, |cos incidence|) of the ground hit; t = inf when the ray does not descend."""
     if dz > -1e-9:
         return math.inf, 0, 0.0
     t1 = (CURB_HEIGHT - oz) / dz
-    s, d = _frenet(ox + t1 * dx, oy + t1 * dy, grid_s, grid_d, gx0, gy0, gres)
-    cls, raised = _zone(s, d, lay_s0, lay_ds, edges, outer, lanes, lane_w)
+    s, d = _frenet(ox + t1 * dx, oy + t1 * dy, g)
+    cls, raised = _zone(s, d, g)
     if raised:
         return t1, cls, -dz
     t0 = -oz / dz
-    s, d = _frenet(ox + t0 * dx, oy + t0 * dy, grid_s, grid_d, gx0, gy0, gres)
-    cls0, raised0 = _zone(s, d, lay_s0, lay_ds, edges, outer, lanes, lane_w)
+    s, d = _frenet(ox + t0 * dx, oy + t0 * dy, g)
+    cls0, raised0 = _zone(s, d, g)
     if not raised0:
         return t0, cls0, -dz
     return t0, cls0, math.sqrt(max(0.0, 1.0 - dz * dz))  # the curb face
@@ -240,43 +247,15 @@ def bin_primitives(ox, oy, oz, kind, center, half, max_range, n_bins):
 
 
 @nb.njit(cache=True)
-def cast_rays(
-    origin,
-    rot,
-    dirs,
-    kind,
-    center,
-    yaw,
-    half,
-    semantic,
-    instance,
-    reflectivity,
-    near,
-    el_lo,
-    el_hi,
-    start,
-    items,
-    n_bins,
-    grid_s,
-    grid_d,
-    gx0,
-    gy0,
-    gres,
-    lay_s0,
-    lay_ds,
-    edges,
-    outer,
-    lanes,
-    lane_w,
-    ground_refl,
-    max_range,
-):
+def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground, ground_refl, max_range):
     """Cast sensor-frame rays ``dirs (R, 3)`` from ``origin (3,)`` rotated by ``rot (3, 3)``.
 
     Returns:
         t ``(R,)`` hit distance (inf: none within ``max_range``), semantic ``(R,) int32`` raw id,
         instance ``(R,) int32``, cos ``(R,)`` |cos incidence|, reflectivity ``(R,)``.
     """
+    kind, center, yaw, half, semantic, instance, reflectivity = prims
+    near, el_lo, el_hi, start, items = cull
     nr = dirs.shape[0]
     out_t = np.full(nr, math.inf)
     out_sem = np.zeros(nr, np.int32)
@@ -292,51 +271,20 @@ def cast_rays(
         dx = rot[0, 0] * sx + rot[0, 1] * sy + rot[0, 2] * sz
         dy = rot[1, 0] * sx + rot[1, 1] * sy + rot[1, 2] * sz
         dz = rot[2, 0] * sx + rot[2, 1] * sy + rot[2, 2] * sz
-        best, cls, cos = _ground(
-            ox,
-            oy,
-            oz,
-            dx,
-            dy,
-            dz,
-            grid_s,
-            grid_d,
-            gx0,
-            gy0,
-            gres,
-            lay_s0,
-            lay_ds,
-            edges,
-            outer,
-            lanes,
-            lane_w,
-        )
+        best, cls, cos = _ground(ox, oy, oz, dx, dy, dz, ground)
         hit = -1
         el = math.asin(min(1.0, max(-1.0, dz)))
-        b = int((math.atan2(dy, dx) + math.pi) / bw)
-        if b >= n_bins:
-            b = n_bins - 1
+        b = min(int((math.atan2(dy, dx) + math.pi) / bw), n_bins - 1)
         for k in range(start[b], start[b + 1]):
             p = items[k]
             if near[p] >= best:
                 break
             if el < el_lo[p] - 1e-4 or el > el_hi[p] + 1e-4:
                 continue
-            qx = ox - center[p, 0]
-            qy = oy - center[p, 1]
-            c, s = yc[p], ys[p]
-            t, cs = _intersect(
-                kind[p],
-                c * qx + s * qy,
-                -s * qx + c * qy,
-                oz - center[p, 2],
-                c * dx + s * dy,
-                -s * dx + c * dy,
-                dz,
-                half[p, 0],
-                half[p, 1],
-                half[p, 2],
-            )
+            qx, qy, c, s = ox - center[p, 0], oy - center[p, 1], yc[p], ys[p]
+            lx, ly, lz = c * qx + s * qy, -s * qx + c * qy, oz - center[p, 2]
+            ex, ey = c * dx + s * dy, -s * dx + c * dy
+            t, cs = _intersect(kind[p], lx, ly, lz, ex, ey, dz, half[p, 0], half[p, 1], half[p, 2])
             if t < best:
                 best = t
                 hit = p

@@ -28,8 +28,10 @@ class Renderer:
         lo = path_xy.min(axis=0) - margin
         hi = path_xy.max(axis=0) + margin
         nx, ny = (np.ceil((hi - lo) / GRID_RES).astype(int) + 1).tolist()
-        self.grid_origin = (float(lo[0]), float(lo[1]))
-        self.grid_s, self.grid_d = scene.road.frenet_grid(lo[0], lo[1], nx, ny, GRID_RES)
+        grid_s, grid_d = scene.road.frenet_grid(lo[0], lo[1], nx, ny, GRID_RES)
+        lay = scene.layout
+        meta = np.array([lo[0], lo[1], GRID_RES, lay.s0, lay.ds, lay.lane_width])
+        self.ground = (grid_s, grid_d, meta, lay.edges, lay.classes, lay.lanes)
 
     def cast(self, pose: np.ndarray, t: float) -> tuple[np.ndarray, ...]:
         """Geometric hits of every ray from sensor pose ``pose`` ``(4, 4)`` (sensor → world) at time ``t``.
@@ -38,50 +40,22 @@ class Renderer:
             range ``(R,)`` (inf: no hit), raw semantic ``(R,) int32``, instance ``(R,) int32``,
             |cos incidence| ``(R,)``, reflectivity ``(R,)``; rays in :meth:`LidarSpec.directions` order.
         """
-        prims = self.scene.primitives_at(t)
+        p = self.scene.primitives_at(t)
         origin = np.ascontiguousarray(pose[:3, 3])
         rot = np.ascontiguousarray(pose[:3, :3])
-        near, el_lo, el_hi, start, items = bin_primitives(
-            origin[0],
-            origin[1],
-            origin[2],
-            prims.kind,
-            prims.center,
-            prims.half,
-            self.spec.max_range,
-            AZIMUTH_BINS,
-        )
-        lay = self.scene.layout
+        max_range = self.spec.max_range
+        cull = bin_primitives(*origin, p.kind, p.center, p.half, max_range, AZIMUTH_BINS)
+        prims = (p.kind, p.center, p.yaw, p.half, p.semantic, p.instance, p.reflectivity)
         return cast_rays(
             origin,
             rot,
             self.dirs,
-            prims.kind,
-            prims.center,
-            prims.yaw,
-            prims.half,
-            prims.semantic,
-            prims.instance,
-            prims.reflectivity,
-            near,
-            el_lo,
-            el_hi,
-            start,
-            items,
+            prims,
+            cull,
             AZIMUTH_BINS,
-            self.grid_s,
-            self.grid_d,
-            self.grid_origin[0],
-            self.grid_origin[1],
-            GRID_RES,
-            lay.s0,
-            lay.ds,
-            lay.edges,
-            lay.outer,
-            lay.lanes,
-            lay.lane_width,
+            self.ground,
             GROUND_REFLECTIVITY,
-            self.spec.max_range + 1.0,
+            max_range + 1.0,
         )
 
     def render(self, pose: np.ndarray, t: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

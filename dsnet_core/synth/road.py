@@ -10,6 +10,7 @@ from scipy.spatial import cKDTree
 
 ROAD, PARKING, SIDEWALK, OTHER_GROUND, TERRAIN, LANE_MARKING = 40, 44, 48, 49, 72, 60
 CURB_HEIGHT = 0.12
+ROAD_EDGE, PARKING_END, LAWN_END, SIDEWALK_END = 0, 1, 2, 3  # rows of GroundLayout.edges
 MARKING_WIDTH = 0.15
 DASH_ON, DASH_PERIOD = 3.0, 9.0
 
@@ -86,14 +87,16 @@ class GroundLayout:
     """Ground classes across the road, per side and per 1 m of arc length.
 
     Side 0 is the left (d > 0), side 1 the right (d < 0). Between the centre line and ``edges[:, 0]``
-    lies road (at z = 0, with lane markings), up to ``edges[:, 1]`` a parking strip (z = 0), up to
-    ``edges[:, 2]`` sidewalk (raised by the curb), beyond it ``outer`` (raised).
+    lies road (at z = 0, with lane markings); up to ``edges[:, 1]`` the kerbside strip of class
+    ``classes[:, 0]`` (parking at z = 0, or raised grass/pavement); up to ``edges[:, 2]`` a grass strip
+    (terrain, raised by the curb); up to ``edges[:, 3]`` sidewalk (raised); beyond it ``classes[:, 1]``
+    (terrain or other-ground, raised). Empty strips have equal consecutive edges.
 
     Attributes:
         s0: arc length of bin 0 (metres).
         ds: bin length (metres).
-        edges: ``(2, 3, n) float64`` |d| of road edge, parking end, sidewalk end (metres).
-        outer: ``(2, n) int32`` raw id beyond the sidewalk (terrain or other-ground).
+        edges: ``(2, 4, n) float64`` |d| of road edge, parking end, grass end, sidewalk end (metres).
+        classes: ``(2, 2, n) int32`` raw ids of the kerbside strip and of the ground beyond the sidewalk.
         lanes: lanes per side.
         lane_width: metres.
     """
@@ -101,7 +104,7 @@ class GroundLayout:
     s0: float
     ds: float
     edges: np.ndarray
-    outer: np.ndarray
+    classes: np.ndarray
     lanes: int
     lane_width: float
 
@@ -109,5 +112,5 @@ class GroundLayout:
         return int(np.clip((s - self.s0) / self.ds, 0, self.edges.shape[2] - 1))
 
     def edge(self, side: int, which: int, s: float) -> float:
-        """|d| of edge ``which`` (0 road, 1 parking, 2 sidewalk) on ``side`` at arc length ``s``."""
+        """|d| of edge ``which`` (ROAD_EDGE ... SIDEWALK_END) on ``side`` at arc length ``s``."""
         return float(self.edges[side, which, self.bin(s)])

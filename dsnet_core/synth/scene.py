@@ -13,7 +13,7 @@ import numpy as np
 from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.layout import SIDES, Occupancy, StuffPlacer, make_layout
 from dsnet_core.synth.primitives import PrimitiveSet
-from dsnet_core.synth.road import GroundLayout, Road
+from dsnet_core.synth.road import LAWN_END, ROAD_EDGE, SIDEWALK_END, GroundLayout, Road
 from dsnet_core.synth.traffic import (
     BICYCLE,
     BICYCLIST,
@@ -74,7 +74,7 @@ def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) 
     speeds = {ego_lane: ego_speed}
     lane_speed = {-(m - 0.5) * lane_w: speeds.get(m, rng.uniform(6.0, 15.0)) for m in range(1, lanes + 1)}
     lane_speed.update({(m - 0.5) * lane_w: -rng.uniform(6.0, 15.0) for m in range(1, lanes + 1)})
-    bike_d = {sign: sign * (lay.edge(side, 0, 0.0) - 0.75) for side, sign in enumerate(SIDES)}
+    bike_d = {sign: sign * (lay.edge(side, ROAD_EDGE, 0.0) - 0.75) for side, sign in enumerate(SIDES)}
     bike_speed = {sign: -sign * rng.uniform(3.5, 6.5) for sign in SIDES}
     traffic.reserve(ego_d, -8.0, 8.0)
 
@@ -103,7 +103,7 @@ def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) 
         )
     walk = 1.0 / max(config.pedestrians, 1e-3)
     for side, sign in enumerate(SIDES):
-        curb, outer = lay.edge(side, 1, 0.0), lay.edge(side, 2, 0.0)
+        curb, outer = lay.edge(side, LAWN_END, 0.0), lay.edge(side, SIDEWALK_END, 0.0)
         for frac, direction in ((0.4, 1.0), (0.62, -1.0)):
             speed = direction * rng.uniform(0.8, 1.6)
             d = sign * (curb + frac * (outer - curb))
@@ -119,17 +119,14 @@ def _guaranteed(
 ) -> None:
     """One of each thing class within ~40 m ahead of the ego's start, where it can be seen."""
     right, left = 1, 0
-    sw = lay.edge(right, 2, 12.0)
+    sw = lay.edge(right, SIDEWALK_END, 12.0)
+    sw_left = lay.edge(left, SIDEWALK_END, 12.0)
     s = rng.uniform(9.0, 12.0)
     for _ in range(3):
         traffic.park(BICYCLE, s, -(sw - 0.35), rng.normal(0, 0.1))
         s += rng.uniform(2.0, 2.6)
-    traffic.park(
-        PERSON, rng.uniform(17.0, 22.0), -(lay.edge(right, 2, 19.0) - 0.35), rng.uniform(0, 2 * np.pi)
-    )
-    traffic.park(
-        MOTORCYCLE, rng.uniform(24.0, 30.0), lay.edge(left, 2, 27.0) - 0.5, np.pi + rng.normal(0, 0.1)
-    )
+    traffic.park(PERSON, rng.uniform(17.0, 22.0), -(sw - 0.35), rng.uniform(0, 2 * np.pi))
+    traffic.park(MOTORCYCLE, rng.uniform(24.0, 30.0), sw_left - 0.5, np.pi + rng.normal(0, 0.1))
     traffic.drive(BICYCLIST, rng.uniform(14.0, 22.0), bike_d[-1.0], bike_speed[-1.0])
     traffic.drive(CAR, rng.uniform(18.0, 26.0), ego_d, ego_speed)
     opposite = min(d for d in lane_speed if d > 0)
@@ -142,6 +139,6 @@ def _guaranteed(
     traffic.drive(
         PERSON,
         rng.uniform(5.0, 15.0),
-        lay.edge(left, 1, 10.0) + 0.5 * (lay.edge(left, 2, 10.0) - lay.edge(left, 1, 10.0)),
+        (lay.edge(left, LAWN_END, 10.0) + lay.edge(left, SIDEWALK_END, 10.0)) / 2,
         -1.2,
     )

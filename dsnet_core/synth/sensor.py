@@ -31,7 +31,7 @@ class LidarSpec:
     azimuth_steps: int
     height: float = 1.73
     range_noise: float = 0.02
-    dropout: float = 0.02
+    dropout: float = 0.04
     far_dropout: float = 0.6
     min_range: float = 1.0
     max_range: float = 120.0

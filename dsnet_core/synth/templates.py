@@ -180,13 +180,13 @@ def motorcyclist(rng: np.random.Generator) -> Shape:
 # -- stuff --------------------------------------------------------------------------------------
 def tree(rng: np.random.Generator) -> tuple[list[Part], list[Part]]:
     """(trunk parts, crown parts) of a tree."""
-    trunk_h, trunk_r = rng.uniform(1.8, 3.8), rng.uniform(0.12, 0.35)
+    trunk_h, trunk_r = rng.uniform(1.4, 3.0), rng.uniform(0.1, 0.3)
     crown_r, crown_z = rng.uniform(1.5, 4.0), rng.uniform(1.5, 4.5)
     trunk = [Part(CYLINDER, (0.0, 0.0, trunk_h / 2), (trunk_r, trunk_r, trunk_h / 2), rng.uniform(0.2, 0.4))]
     crown = [
         Part(
             ELLIPSOID,
-            (0.0, 0.0, trunk_h + 0.7 * crown_z),
+            (0.0, 0.0, trunk_h + 0.6 * crown_z),
             (crown_r, crown_r * rng.uniform(0.8, 1.0), crown_z),
             rng.uniform(0.3, 0.6),
         )
@@ -210,8 +210,15 @@ def streetlight(rng: np.random.Generator) -> list[Part]:
 def sign(rng: np.random.Generator) -> tuple[list[Part], list[Part]]:
     """(pole parts, plate parts) of a traffic sign; the plate faces along ±x (oncoming traffic when
     placed with the road heading)."""
-    h = rng.uniform(2.0, 2.8)
-    plate = rng.uniform(0.3, 0.45)
-    pole = [Part(CYLINDER, (0.0, 0.0, h / 2), (0.035, 0.035, h / 2), 0.4)]
-    plates = [Part(BOX, (0.0, 0.0, h + plate * 0.9), (0.02, plate, plate), 0.95)]
+    bottom = rng.uniform(1.9, 2.3)  # lower edge of the lowest plate above the sidewalk
+    plates, z = [], bottom
+    for _ in range(1 if rng.random() < 0.6 else 2):
+        w, h = (
+            (rng.uniform(0.3, 0.42),) * 2
+            if rng.random() < 0.7
+            else (rng.uniform(0.4, 0.7), rng.uniform(0.2, 0.3))
+        )
+        plates.insert(0, Part(BOX, (0.0, 0.0, z + h), (0.02, w, h), rng.uniform(0.85, 1.0)))
+        z += 2 * h + 0.05
+    pole = [Part(CYLINDER, (0.0, 0.0, z / 2), (0.035, 0.035, z / 2), 0.4)]
     return pole, plates

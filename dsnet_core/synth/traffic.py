@@ -11,7 +11,7 @@ import numpy as np
 from dsnet_core.synth import templates
 from dsnet_core.synth.layout import SIDES, Occupancy, Street
 from dsnet_core.synth.primitives import PrimitiveBuilder, PrimitiveSet
-from dsnet_core.synth.road import Road
+from dsnet_core.synth.road import PARKING_END, ROAD_EDGE, SIDEWALK_END, Road
 
 # raw SemanticKITTI ids: (static, moving)
 CAR, BICYCLE, BUS, MOTORCYCLE, TRUCK, OTHER_VEHICLE = (
@@ -144,7 +144,7 @@ class Traffic:
                 sc = s + shape.length / 2
                 if sc + shape.length / 2 > s1:
                     break
-                d = sign * (lay.edge(side, 0, sc) + (lay.edge(side, 1, sc) - lay.edge(side, 0, sc)) / 2)
+                d = sign * (lay.edge(side, ROAD_EDGE, sc) + lay.edge(side, PARKING_END, sc)) / 2
                 if rng.random() < parked:
                     self.park(cls, sc, d, 0.0 if sign < 0 else np.pi, shape)
                 s = sc + shape.length / 2 + rng.uniform(0.6, 2.5)
@@ -152,7 +152,7 @@ class Traffic:
             if lot.kind != "paved":
                 continue
             sign = SIDES[lot.side]
-            base = lay.edge(lot.side, 2, (lot.s0 + lot.s1) / 2)
+            base = lay.edge(lot.side, SIDEWALK_END, (lot.s0 + lot.s1) / 2)
             for s in np.arange(lot.s0 + 1.5, lot.s1 - 1.5, 2.8):
                 if rng.random() < parked * 0.7:
                     self.park(
@@ -165,7 +165,7 @@ class Traffic:
         for side, sign in enumerate(SIDES):
             s = s_lo + rng.uniform(0.0, 20.0)
             while s < s_hi:
-                outer = lay.edge(side, 2, s)
+                outer = lay.edge(side, SIDEWALK_END, s)
                 if rng.random() < 0.5:
                     for k in range(int(rng.integers(1, 5))):
                         self.park(BICYCLE, s + 2.2 * k, sign * (outer - 0.35), rng.normal(0, 0.1))

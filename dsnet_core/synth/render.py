@@ -65,9 +65,5 @@ class Renderer:
             scan ``(N, 4) float32`` (x, y, z in the sensor frame, metres; remission) and label
             ``(N,) uint32`` (raw semantic | instance << 16).
         """
-        rng_t, sem, inst, cos, refl = self.cast(pose, t)
-        keep, measured, remission = simulate_returns(self.spec, rng_t, cos, refl, rng)
-        xyz = self.dirs[keep] * measured[keep, None]
-        scan = np.concatenate([xyz.astype(np.float32), remission[keep, None]], axis=1)
-        label = sem[keep].astype(np.uint32) | (inst[keep].astype(np.uint32) << 16)
-        return scan, label
+        hit_range, sem, inst, cos, refl = self.cast(pose, t)
+        return simulate_returns(self.spec, self.dirs, hit_range, cos, refl, sem, inst, rng)

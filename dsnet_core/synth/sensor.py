@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from dsnet_core.errors import ConfigError
@@ -91,31 +93,58 @@ def get_sensor(name: str) -> LidarSpec:
 
 def simulate_returns(
     spec: LidarSpec,
+    dirs: np.ndarray,
     hit_range: np.ndarray,
     cos_incidence: np.ndarray,
     reflectivity: np.ndarray,
+    semantic: np.ndarray,
+    instance: np.ndarray,
     rng: np.random.Generator,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Turn geometric hits into sensor returns.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Turn geometric hits into a scan: range noise, dropout, remission, labels.
+
+    A return is lost with probability ``dropout + far_dropout · (r / max_range)² · (1 − signal)``,
+    where ``signal = reflectivity · (0.35 + 0.65 · cos incidence)`` (dark, grazing, far surfaces drop
+    more); remission is ``signal · exp(−r / 250 m)`` plus noise, clipped to [0, 1].
 
     Args:
+        dirs: ``(R, 3) float64`` unit ray directions in the sensor frame.
         hit_range: ``(R,) float64`` distance to the first surface along each ray (inf: no hit), metres.
         cos_incidence: ``(R,) float64`` |cos| of the angle between ray and surface normal.
         reflectivity: ``(R,) float64`` material reflectivity in [0, 1].
+        semantic, instance: ``(R,) int32`` raw class and instance id of the surface hit.
+        rng: draws the noise (advanced; deterministic output for a seeded generator).
 
     Returns:
-        ``keep`` ``(R,) bool`` rays that produce a point, ``range`` ``(R,) float64`` measured range
-        (metres, with noise), ``remission`` ``(R,) float32`` in [0, 1].
+        scan ``(N, 4) float32`` (x, y, z metres in the sensor frame; remission) and label ``(N,) uint32``
+        (raw semantic | instance << 16), rays in ``dirs`` order.
     """
+    params = np.array(
+        [spec.range_noise, spec.dropout, spec.far_dropout, spec.min_range, spec.max_range], dtype=np.float64
+    )
+    return _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, rng)
+
+
+@nb.njit(cache=True)
+def _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, rng):
+    noise, dropout, far_dropout, min_range, max_range = params[0], params[1], params[2], params[3], params[4]
     n = hit_range.shape[0]
-    u = rng.random(n)
-    noise = rng.normal(0.0, spec.range_noise, n)
-    rem_noise = rng.normal(0.0, 0.02, n)
-    hit = np.isfinite(hit_range) & (hit_range >= spec.min_range) & (hit_range <= spec.max_range)
-    r = np.where(hit, hit_range, spec.max_range)
-    frac = r / spec.max_range
-    signal = reflectivity * (0.35 + 0.65 * cos_incidence)
-    p_drop = spec.dropout + spec.far_dropout * frac**2 * (1.0 - np.clip(signal, 0.0, 1.0))
-    keep = hit & (u >= p_drop)
-    remission = np.clip(signal * np.exp(-r / 250.0) + rem_noise, 0.0, 1.0).astype(np.float32)
-    return keep, r + noise, remission
+    scan = np.empty((n, 4), np.float32)
+    label = np.empty(n, np.uint32)
+    k = 0
+    for i in range(n):
+        r = hit_range[i]
+        if not (min_range <= r <= max_range):
+            continue
+        signal = min(max(reflectivity[i] * (0.35 + 0.65 * cos_incidence[i]), 0.0), 1.0)
+        frac = r / max_range
+        if rng.random() < dropout + far_dropout * frac * frac * (1.0 - signal):
+            continue
+        m = r + rng.normal(0.0, noise)
+        scan[k, 0] = dirs[i, 0] * m
+        scan[k, 1] = dirs[i, 1] * m
+        scan[k, 2] = dirs[i, 2] * m
+        scan[k, 3] = min(max(signal * math.exp(-r / 250.0) + rng.normal(0.0, 0.02), 0.0), 1.0)
+        label[k] = np.uint32(semantic[i]) | (np.uint32(instance[i]) << np.uint32(16))
+        k += 1
+    return scan[:k].copy(), label[:k].copy()

@@ -17,18 +17,22 @@ Run: ``.venv/bin/python bench/bench_synth.py``.
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core: also for the numpy baseline's BLAS
+
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dsnet_core.io import kitti
-from dsnet_core.synth import SynthConfig, get_sensor, plan_sequence
-from dsnet_core.synth.render import Renderer
+from dsnet_core.io import kitti  # noqa: E402
+from dsnet_core.synth import SynthConfig, get_sensor, plan_sequence  # noqa: E402
+from dsnet_core.synth.render import Renderer  # noqa: E402
 
 REPEATS = 10
 

@@ -9,7 +9,7 @@ from dsnet_core.synth.scene import Scene
 from dsnet_core.synth.sensor import LidarSpec, simulate_returns
 
 AZIMUTH_BINS = 720
-GRID_RES = 0.5
+GRID_RES = 1.0  # bilinear Frenet lookup: error ≈ curvature · res² / 8 < 1 cm
 
 
 class Renderer:

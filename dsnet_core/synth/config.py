@@ -28,5 +28,5 @@ class SynthConfig:
     view_radius: float = 130.0
     traffic: float = 1.0
     pedestrians: float = 1.0
-    parked: float = 0.75
+    parked: float = 0.65
     jitter_deg: float = 0.3

@@ -38,6 +38,18 @@ class Occupancy:
         self.circles.append((s, d, r))
         return True
 
+    def take_box(self, s: float, d: float, length: float, width: float, yaw: float) -> bool:
+        """Take a ``length`` × ``width`` footprint turned by ``yaw`` from the road direction, covered
+        by a row of circles."""
+        n = max(1, int(np.ceil(length / width)))
+        offsets = (np.arange(n) + 0.5) * (length / n) - length / 2
+        r = 0.5 * max(width, length / n) + 0.15
+        circles = [(s + o * np.cos(yaw), d + o * np.sin(yaw), r) for o in offsets]
+        if not all(self.free(*c) for c in circles):
+            return False
+        self.circles.extend(circles)
+        return True
+
 
 @dataclass(frozen=True)
 class Lot:
@@ -52,6 +64,17 @@ class Street:
     layout: GroundLayout
     lots: list[Lot]
     parking: list[tuple[int, float, float]]  # (side, s0, s1) parking strips
+
+    def ensure_parking(self, side: int, s0: float, s1: float) -> bool:
+        """Turn the kerbside strip of ``side`` over ``[s0, s1]`` into parking; False if it has none."""
+        lay = self.layout
+        if lay.edge(side, 1, s0) - lay.edge(side, 0, s0) < 1.5:
+            return False
+        lay.classes[side, 0, lay.bin(s0) : lay.bin(s1) + 1] = PARKING
+        overlap = [(a, b) for sd, a, b in self.parking if sd == side and a <= s1 and b >= s0]
+        self.parking[:] = [p for p in self.parking if p[0] != side or p[1] > s1 or p[2] < s0]
+        self.parking.append((side, min([s0] + [a for a, _ in overlap]), max([s1] + [b for _, b in overlap])))
+        return True
 
 
 def make_layout(rng: np.random.Generator, s_lo: float, s_hi: float) -> Street:
@@ -173,7 +196,7 @@ class StuffPlacer:
 
     def _lot_building(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
         rng = self.rng
-        setback = rng.uniform(0.0, 6.0) if rng.random() < 0.6 else 0.0
+        setback = rng.uniform(2.0, 8.0) if rng.random() < 0.75 else 0.0
         depth, height = rng.uniform(8.0, 20.0), rng.uniform(4.0, 25.0)
         gap = rng.uniform(0.5, 6.0)
         length = lot.s1 - lot.s0 - gap
@@ -187,12 +210,16 @@ class StuffPlacer:
             d,
             BUILDING,
         )
-        if setback > 1.5:
+        if setback > 1.5:  # a front yard: fence or hedge at the sidewalk, bushes on the lawn
             dy = sign * (sidewalk_end + 0.3)
-            if rng.random() < 0.5:
+            if rng.random() < 0.4:
                 self.along(lot.s0, lot.s1, dy, 0.05, rng.uniform(0.8, 1.8), FENCE, rng.uniform(0.2, 0.5))
-            else:
-                self.along(lot.s0, lot.s1, dy, rng.uniform(0.5, 1.0), rng.uniform(0.8, 1.6), VEGETATION, 0.45)
+            elif rng.random() < 0.8:
+                self.along(lot.s0, lot.s1, dy, rng.uniform(0.5, 1.0), rng.uniform(0.8, 1.8), VEGETATION, 0.45)
+            for _ in range(int(rng.integers(0, 4))):
+                s, d = rng.uniform(lot.s0, lot.s1), sign * (sidewalk_end + rng.uniform(1.0, setback - 0.5))
+                if self.occ.take(s, d, 0.8):
+                    self.place(templates.bush(rng), s, d, VEGETATION, rng.uniform(0, np.pi))
 
     def _lot_park(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
         rng = self.rng
@@ -204,11 +231,18 @@ class StuffPlacer:
                 self.place(templates.bush(rng), s, d, VEGETATION, rng.uniform(0, np.pi))
 
     def _lot_field(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
+        """Open grass with a fence or hedgerow, scattered trees and a tree line behind."""
         rng = self.rng
         d = sign * (sidewalk_end + rng.uniform(0.5, 3.0))
-        self.along(lot.s0, lot.s1, d, 0.05, rng.uniform(1.0, 2.0), FENCE, rng.uniform(0.2, 0.5))
+        if rng.random() < 0.5:
+            self.along(lot.s0, lot.s1, d, 0.05, rng.uniform(1.0, 2.0), FENCE, rng.uniform(0.2, 0.5))
+        else:
+            self.along(lot.s0, lot.s1, d, rng.uniform(0.8, 1.5), rng.uniform(1.0, 2.2), VEGETATION, 0.45)
         for _ in range(int((lot.s1 - lot.s0) / 10.0)):
             self.tree(rng.uniform(lot.s0, lot.s1), sign * (abs(d) + rng.uniform(3.0, 15.0)))
+        back = abs(d) + rng.uniform(18.0, 35.0)
+        for s in np.arange(lot.s0 + 2.0, lot.s1, rng.uniform(3.0, 5.0)):
+            self.tree(float(s), sign * (back + rng.uniform(-1.5, 1.5)))
 
     def _lot_paved(self, lot: Lot, sign: float, sidewalk_end: float) -> None:
         rng = self.rng

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from dsnet_core.synth.config import SynthConfig
-from dsnet_core.synth.layout import SIDES, Occupancy, StuffPlacer, make_layout
+from dsnet_core.synth.layout import SIDES, Occupancy, Street, StuffPlacer, make_layout
 from dsnet_core.synth.primitives import PrimitiveSet
-from dsnet_core.synth.road import LAWN_END, ROAD_EDGE, SIDEWALK_END, GroundLayout, Road
+from dsnet_core.synth.road import LAWN_END, PARKING_END, ROAD_EDGE, SIDEWALK_END, GroundLayout, Road
 from dsnet_core.synth.traffic import (
     BICYCLE,
     BICYCLIST,
@@ -78,7 +78,7 @@ def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) 
     bike_speed = {sign: -sign * rng.uniform(3.5, 6.5) for sign in SIDES}
     traffic.reserve(ego_d, -8.0, 8.0)
 
-    _guaranteed(rng, traffic, lay, ego_d, ego_speed, lane_speed, bike_d, bike_speed)
+    _guaranteed(rng, traffic, street, ego_d, ego_speed, lane_speed, bike_d, bike_speed)
     traffic.park_street(config.parked)
     traffic.sidewalk_things(s_lo, s_hi)
 
@@ -88,11 +88,11 @@ def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) 
         return -reach - max(0.0, rel), reach + max(0.0, -rel)
 
     def vehicle():
-        return [CAR, TRUCK, BUS, OTHER_VEHICLE, MOTORCYCLIST][rng.choice(5, p=[0.8, 0.06, 0.04, 0.04, 0.06])]
+        return [CAR, TRUCK, BUS, OTHER_VEHICLE, MOTORCYCLIST][rng.choice(5, p=[0.86, 0.03, 0.02, 0.03, 0.06])]
 
     dense = 1.0 / max(config.traffic, 1e-3)
     for d, speed in lane_speed.items():
-        traffic.fill_lane(d, speed, *window(speed), (10.0 * dense, 60.0 * dense), vehicle)
+        traffic.fill_lane(d, speed, *window(speed), (15.0 * dense, 90.0 * dense), vehicle)
     for sign in SIDES:
         traffic.fill_lane(
             bike_d[sign],
@@ -115,9 +115,10 @@ def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) 
 
 
 def _guaranteed(
-    rng, traffic: Traffic, lay: GroundLayout, ego_d, ego_speed, lane_speed, bike_d, bike_speed
+    rng, traffic: Traffic, street: Street, ego_d, ego_speed, lane_speed, bike_d, bike_speed
 ) -> None:
-    """One of each thing class within ~40 m ahead of the ego's start, where it can be seen."""
+    """One of each thing class within ~50 m ahead of the ego's start, where it can be seen."""
+    lay = street.layout
     right, left = 1, 0
     sw = lay.edge(right, SIDEWALK_END, 12.0)
     sw_left = lay.edge(left, SIDEWALK_END, 12.0)
@@ -126,12 +127,21 @@ def _guaranteed(
         traffic.park(BICYCLE, s, -(sw - 0.35), rng.normal(0, 0.1))
         s += rng.uniform(2.0, 2.6)
     traffic.park(PERSON, rng.uniform(17.0, 22.0), -(sw - 0.35), rng.uniform(0, 2 * np.pi))
-    traffic.park(MOTORCYCLE, rng.uniform(24.0, 30.0), sw_left - 0.5, np.pi + rng.normal(0, 0.1))
+    traffic.park(MOTORCYCLE, rng.uniform(12.0, 18.0), sw_left - 0.5, np.pi + rng.normal(0, 0.1))
     traffic.drive(BICYCLIST, rng.uniform(14.0, 22.0), bike_d[-1.0], bike_speed[-1.0])
     traffic.drive(CAR, rng.uniform(18.0, 26.0), ego_d, ego_speed)
     opposite = min(d for d in lane_speed if d > 0)
     s = rng.uniform(15.0, 25.0)
-    for cls in (MOTORCYCLIST, TRUCK, OTHER_VEHICLE, CAR):
+    unplaced = [TRUCK, OTHER_VEHICLE]
+    if street.ensure_parking(left, 20.0, 60.0):  # a delivery truck and a van parked across the road
+        s_park = rng.uniform(22.0, 26.0)
+        d = (lay.edge(left, ROAD_EDGE, s_park) + lay.edge(left, PARKING_END, s_park)) / 2
+        for cls in [TRUCK, OTHER_VEHICLE]:
+            shape = SHAPES[cls](rng)
+            if traffic.park(cls, s_park + shape.length / 2, d, np.pi, shape):
+                unplaced.remove(cls)
+            s_park += shape.length + rng.uniform(1.0, 3.0)
+    for cls in [MOTORCYCLIST, *unplaced, CAR]:  # what could not park drives towards the ego
         shape = SHAPES[cls](rng)
         s += shape.length / 2
         traffic.drive(cls, s, opposite, lane_speed[opposite], shape)

@@ -96,7 +96,7 @@ class Traffic:
     def park(self, cls: tuple[int, int], s: float, d: float, yaw_offset: float = 0.0, shape=None) -> bool:
         """Place a static thing at Frenet ``(s, d)``; False if the spot is taken."""
         shape = shape or SHAPES[cls](self.rng)
-        if not self.occ.take(s, d, 0.5 * max(shape.length, shape.width) + 0.2):
+        if not self.occ.take_box(s, d, shape.length, shape.width, yaw_offset):
             return False
         x, y, h = self.road.pose_at(s, d)
         self._static.add_parts(

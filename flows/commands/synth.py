@@ -41,8 +41,8 @@ def demo(
     typer.echo("[2/2] reading it back through the SemanticKITTI reader (every file checked)")
     _print_summary(summarize(SemanticKittiReader(out)))
     typer.echo(
-        "Labelling: not yet available. The DS-Net model and the labelling pipeline are not built yet, "
-        "so this demo stops after generating and checking the input log."
+        "Labelling: not yet available. This demo does not run a model or the labelling flow yet; "
+        "it stops after generating and checking the input log."
     )
 
 

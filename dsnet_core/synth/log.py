@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from dsnet_core.errors import SequenceLayoutError
+from dsnet_core.errors import ConfigError, SequenceLayoutError
 from dsnet_core.io.semantickitti import write_frame, write_sequence_meta
 from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.render import Renderer
@@ -123,9 +123,19 @@ def generate_log(
 
     Raises:
         SequenceLayoutError: a sequence folder already holds files and ``overwrite`` is False.
-        ConfigError: unknown ``sensor``.
+        ConfigError: unknown ``sensor``; fewer than one sequence or frame; a negative seed; sequence
+            numbers beyond 99 (names are two digits).
     """
-    config = SynthConfig(**{**(config or SynthConfig()).__dict__, "sensor": sensor})
+    if sequences < 1 or frames < 1:
+        raise ConfigError(
+            f"need at least one sequence and one frame, got sequences={sequences}, frames={frames}"
+        )
+    if seed < 0 or first_sequence < 0 or first_sequence + sequences > 100:
+        raise ConfigError(
+            f"seed and sequence numbers must be ≥ 0 and sequences must end at 99 (two-digit names), got "
+            f"seed={seed}, first_sequence={first_sequence}, sequences={sequences}"
+        )
+    config = replace(config or SynthConfig(), sensor=sensor)
     spec = get_sensor(sensor)
     tr = kitti_tr()
     names = [f"{first_sequence + k:02d}" for k in range(sequences)]

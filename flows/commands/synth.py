@@ -11,9 +11,9 @@ def synth(
     out: Path = typer.Argument(..., help="Log root to write (gets sequences/SS/...)."),
     sequences: int = typer.Option(1, min=1, max=99, help="Number of sequences."),
     frames: int = typer.Option(20, min=1, help="Sweeps per sequence (10 Hz)."),
-    seed: int = typer.Option(0, help="Master seed; each sequence derives its own from it."),
+    seed: int = typer.Option(0, min=0, help="Master seed; each sequence derives its own from it."),
     sensor: str = typer.Option("hdl64", help="LiDAR model: hdl64 (64 beams) or vlp32 (32 beams, faster)."),
-    first_sequence: int = typer.Option(0, min=0, help="Number of the first sequence."),
+    first_sequence: int = typer.Option(0, min=0, max=99, help="Number of the first sequence."),
     overwrite: bool = typer.Option(False, help="Replace sequences that already exist."),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""

@@ -164,6 +164,22 @@ def test_refuses_to_overwrite(tmp_path):
     assert len(SemanticKittiReader(tmp_path).frames("00")) == 1
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"frames": 0}, "need at least one sequence and one frame, got sequences=1, frames=0"),
+        ({"sequences": 0}, "need at least one sequence and one frame, got sequences=0, frames=20"),
+        ({"seed": -1}, "got seed=-1, first_sequence=0, sequences=1"),
+        ({"first_sequence": 99, "sequences": 2}, "must end at 99 \\(two-digit names\\)"),
+        ({"sensor": "hdl32"}, "unknown LiDAR model 'hdl32'"),
+    ],
+)
+def test_bad_arguments(tmp_path, kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        generate_log(tmp_path, **kwargs)
+    assert not (tmp_path / "sequences").exists()
+
+
 def test_synth_log_fixture(synth_log):
     reader = SemanticKittiReader(synth_log)
     assert reader.sequences() == ["00", "01"]

@@ -76,3 +76,20 @@ def test_report_dict_has_the_issue_keys_and_no_nan(kitti):
     assert list(d)[:2] == ["mode", "pq"] and d["s_assoc"] is None and d["lstq"] is None
     assert d["per_class"]["road"] == {"pq": 1.0, "sq": 1.0, "rq": 1.0, "iou": 1.0} and d["frames"] == 1
     json.loads(json.dumps(d, allow_nan=False))
+
+
+@pytest.mark.parametrize("mode", ["official", "corrected"])
+def test_per_sequence_results_equal_scoring_each_sequence_alone(kitti, mode):
+    frames = _frames(kitti, seed=2)
+    both = PanopticEvaluator(kitti, min_points=20, mode=mode)
+    alone = {"00": PanopticEvaluator(kitti, min_points=20, mode=mode)}
+    alone["01"] = PanopticEvaluator(kitti, min_points=20, mode=mode)
+    half = PanopticEvaluator(kitti, min_points=20, mode=mode)
+    for k, (seq, name, gt, pred) in enumerate(frames):
+        (both if k % 2 else half).add(gt, pred, frame=name, sequence=seq)
+        alone[seq].add(gt, pred, frame=name, sequence=seq)
+    per_seq = both.merge(half).result_by_sequence()
+    assert list(per_seq) == ["00", "01"]
+    for seq, ev in alone.items():
+        assert per_seq[seq] == ev.result() and per_seq[seq].frames == 4
+    assert both.result() != per_seq["00"]

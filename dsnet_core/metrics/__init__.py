@@ -7,8 +7,8 @@ public evaluators to 1e-12, quirks included; ``corrected`` fixes the defects MET
 
 Entry points:
     PanopticEvaluator               SemanticKITTI raw ``.label`` arrays (or train ids via
-                                    ``add_train``) -> EvalResult (PQ family + mIoU + LSTQ) and
-                                    per-frame FrameRow records.
+                                    ``add_train``) -> EvalResult (PQ family + mIoU + LSTQ),
+                                    ``result_by_sequence()`` and per-frame FrameRow records.
     NuScenesPanopticEvaluator       Panoptic nuScenes PQ family (``read_panoptic_npz``).
     PanopticTrackingAccumulator     Panoptic nuScenes LSTQ/PTQ/sPTQ/TQ/PAT over ``NuScenesCells``.
     pair_label_files                GT/prediction folders paired by file name (``dsnet eval``).

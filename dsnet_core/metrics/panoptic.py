@@ -194,6 +194,7 @@ class PanopticAccumulator:
                 int(self.tp[k]),
                 int(self.fp[k]),
                 int(self.fn[k]),
+                int(k) in spec.things,
             )
             for k in inc
         }

@@ -93,3 +93,26 @@ def test_per_sequence_results_equal_scoring_each_sequence_alone(kitti, mode):
     for seq, ev in alone.items():
         assert per_seq[seq] == ev.result() and per_seq[seq].frames == 4
     assert both.result() != per_seq["00"]
+
+
+def test_table_rows_for_classes_and_runs(kitti):
+    from dsnet_core.metrics import class_rows, summary_row
+
+    ev = PanopticEvaluator(kitti, min_points=1)
+    ev.add(
+        np.array([40] * 10 + [10 | (1 << 16)] * 5, np.uint32), np.array([40] * 15, np.uint32), sequence="08"
+    )
+    res = ev.result_by_sequence()["08"]
+    rows = class_rows(res, sequence="08")
+    assert len(rows) == 19 and rows[0]["class"] == "car" and rows[0]["thing"] is True
+    road = next(r for r in rows if r["class"] == "road")
+    assert (road["thing"], road["tp"], road["fn"], road["mode"], road["sequence"]) == (
+        False,
+        1,
+        0,
+        "official",
+        "08",
+    )
+    assert road["iou"] == pytest.approx(10 / 15)
+    run = summary_row(res, run="r1")
+    assert "per_class" not in run and run["frames"] == 1 and run["run"] == "r1" and run["pq_things"] == 0.0

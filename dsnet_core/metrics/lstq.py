@@ -28,7 +28,7 @@ import numpy as np
 
 from .cells import Cells, CountTable
 from .decode import ClassSpec
-from .panoptic import EPS, semantic_iou
+from .panoptic import semantic_iou
 from .report import LSTQResult, Mode, as_mode
 
 VARIANTS = ("4dpls", "nuscenes")
@@ -242,4 +242,4 @@ def _group(keys: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> tuple[np.n
     return k, np.bincount(inv, weights=counts[mask], minlength=k.size).astype(np.int64)
 
 
-__all__ = ["EPS", "VARIANTS", "LSTQAccumulator"]
+__all__ = ["VARIANTS", "LSTQAccumulator"]

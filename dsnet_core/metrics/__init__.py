@@ -7,8 +7,9 @@ public evaluators to 1e-12, quirks included; ``corrected`` fixes the defects MET
 
 Entry points:
     PanopticEvaluator               SemanticKITTI raw ``.label`` arrays (or train ids via
-                                    ``add_train``) -> EvalResult (PQ family + mIoU + LSTQ) and
-                                    per-frame FrameRow records.
+                                    ``add_train``) -> EvalResult (PQ family + mIoU + LSTQ),
+                                    ``result_by_sequence()`` and per-frame FrameRow records;
+                                    ``class_rows``/``summary_row`` flatten results into table rows.
     NuScenesPanopticEvaluator       Panoptic nuScenes PQ family (``read_panoptic_npz``).
     PanopticTrackingAccumulator     Panoptic nuScenes LSTQ/PTQ/sPTQ/TQ/PAT over ``NuScenesCells``.
     pair_label_files                GT/prediction folders paired by file name (``dsnet eval``).
@@ -20,7 +21,7 @@ from .nuscenes import NuScenesCells, NuScenesPanopticEvaluator, read_panoptic_np
 from .nuscenes_track import PanopticTrackingAccumulator, TrackingResult
 from .pairing import LabelPair, pair_label_files
 from .panoptic import PanopticAccumulator, ReferenceOverflowError
-from .report import ClassScore, EvalResult, FrameRow, LSTQResult, Mode, PQResult
+from .report import ClassScore, EvalResult, FrameRow, LSTQResult, Mode, PQResult, class_rows, summary_row
 
 __all__ = [
     "ClassScore",
@@ -38,7 +39,9 @@ __all__ = [
     "PanopticTrackingAccumulator",
     "ReferenceOverflowError",
     "TrackingResult",
+    "class_rows",
     "pair_label_files",
     "read_panoptic_npz",
+    "summary_row",
     "write_panoptic_npz",
 ]

@@ -100,7 +100,7 @@ class CountTable:
     a frame costs one ``np.concatenate`` and merging two tables is exact.
     """
 
-    def __init__(self, compact_every: int = 1 << 15) -> None:
+    def __init__(self, compact_every: int = 1 << 13) -> None:
         self._keys = np.zeros(0, dtype=np.uint64)
         self._vals = np.zeros(0, dtype=np.int64)
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []
@@ -114,7 +114,7 @@ class CountTable:
         self._pending.append((np.asarray(keys, dtype=np.uint64), np.asarray(values, dtype=np.int64)))
         self._n_pending += len(keys)
         if self._n_pending > max(self._compact_every, self._keys.size):
-            self._compact()
+            self.compact()
 
     def merge(self, other: CountTable) -> None:
         """Add every entry of ``other`` into this table."""
@@ -123,14 +123,15 @@ class CountTable:
 
     def items(self) -> tuple[np.ndarray, np.ndarray]:
         """``(keys (K,) uint64 sorted, values (K,) int64)``."""
-        self._compact()
+        self.compact()
         return self._keys, self._vals
 
     def __len__(self) -> int:
-        self._compact()
+        self.compact()
         return int(self._keys.size)
 
-    def _compact(self) -> None:
+    def compact(self) -> None:
+        """Fold buffered additions into the sorted table (memory: distinct keys only)."""
         if not self._pending:
             return
         keys = np.concatenate([self._keys, *(k for k, _ in self._pending)])

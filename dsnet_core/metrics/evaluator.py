@@ -55,6 +55,7 @@ class PanopticEvaluator:
         self.panoptic = PanopticAccumulator(self.spec, self.min_points, self.mode)
         self.lstq = LSTQAccumulator(self.spec, self.min_points, self.mode, variant="4dpls")
         self.rows: list[FrameRow] = []
+        self.by_sequence: dict[str, PanopticAccumulator] = {}
         self._raw = KittiDecoder(label_map)
         self._train = TrainDecoder()
 
@@ -105,6 +106,7 @@ class PanopticEvaluator:
 
     def _add(self, cells: Cells, frame: str, sequence: str) -> FrameRow:
         fpq = self.panoptic.add(cells)
+        self._sequence_pq(str(sequence)).add_frame(fpq)
         self.lstq.add(cells, sequence)
         row = frame_row(fpq, self.spec, str(sequence), str(frame), cells.n_points)
         if self.keep_rows:
@@ -115,12 +117,26 @@ class PanopticEvaluator:
         """Add ``other``'s state (same label map, min_points, mode) into this one; returns self."""
         self.panoptic.merge(other.panoptic)
         self.lstq.merge(other.lstq)
+        for seq, acc in other.by_sequence.items():
+            self._sequence_pq(seq).merge(acc)
         self.rows.extend(other.rows)
         return self
 
     def result(self) -> EvalResult:
         """All metrics so far; idempotent (the state is not modified)."""
         return EvalResult(self.mode, self.frames, self.panoptic.result(), self.lstq.result())
+
+    def result_by_sequence(self) -> dict[str, EvalResult]:
+        """The same metrics for each sequence alone (sorted by name)."""
+        return {
+            seq: EvalResult(self.mode, acc.frames, acc.result(), self.lstq.result(seq))
+            for seq, acc in sorted(self.by_sequence.items())
+        }
+
+    def _sequence_pq(self, sequence: str) -> PanopticAccumulator:
+        if sequence not in self.by_sequence:
+            self.by_sequence[sequence] = PanopticAccumulator(self.spec, self.min_points, self.mode)
+        return self.by_sequence[sequence]
 
 
 def frame_row(fpq: FramePQ, spec: ClassSpec, sequence: str, frame: str, n_points: int) -> FrameRow:

@@ -28,7 +28,7 @@ import numpy as np
 
 from .cells import Cells, CountTable
 from .decode import ClassSpec
-from .panoptic import EPS, semantic_iou
+from .panoptic import semantic_iou
 from .report import LSTQResult, Mode, as_mode
 
 VARIANTS = ("4dpls", "nuscenes")
@@ -37,14 +37,21 @@ _U = np.uint64
 
 
 class _SeqTables:
-    __slots__ = ("inter", "preds", "tubes")
+    __slots__ = ("conf", "inter", "preds", "tubes")
 
-    def __init__(self) -> None:
+    def __init__(self, n_classes: int) -> None:
+        self.conf = np.zeros((n_classes, n_classes), dtype=np.int64)  # conf[pred, gt], all points
         self.preds = CountTable()  # pred id -> points
         self.tubes = CountTable()  # cls << 24 | gt id -> points
         self.inter = CountTable()  # (cls << 24 | gt id) << 24 | pred id -> points
 
+    def compact(self) -> None:
+        self.preds.compact()
+        self.tubes.compact()
+        self.inter.compact()
+
     def merge(self, other: _SeqTables) -> None:
+        self.conf += other.conf
         self.preds.merge(other.preds)
         self.tubes.merge(other.tubes)
         self.inter.merge(other.inter)
@@ -73,13 +80,18 @@ class LSTQAccumulator:
         self.min_points = int(min_points)
         self.mode = as_mode(mode)
         self.variant = variant
-        c = spec.n_classes
         self._ignored = spec.mask(spec.ignore)
         self._include = ~self._ignored
         self._thing = spec.mask(spec.things)
-        self.conf = np.zeros((c, c), dtype=np.int64)
         self.seqs: dict[str, _SeqTables] = {}
         self.frames = 0
+        self._active: str | None = None  # only the sequence being added to keeps buffered rows
+
+    @property
+    def conf(self) -> np.ndarray:
+        """``(C, C) int64`` semantic confusion ``conf[pred, gt]`` over all sequences."""
+        c = self.spec.n_classes
+        return sum((t.conf for t in self.seqs.values()), np.zeros((c, c), dtype=np.int64))
 
     # -- accumulation ---------------------------------------------------------------------
     def add(self, cells: Cells, sequence: str) -> None:
@@ -90,9 +102,13 @@ class LSTQAccumulator:
         if cells.count.size and max(cells.gt_id.max(), cells.pred_id.max()) >= 1 << _ID_BITS:
             raise ValueError(f"instance ids must be < 2**{_ID_BITS}")
         conf = np.bincount(cells.pred_cls * c + cells.gt_cls, weights=cells.count, minlength=c * c)
-        self.conf += conf.astype(np.int64).reshape(c, c)
+        sequence = str(sequence)
+        if self._active is not None and self._active != sequence and self._active in self.seqs:
+            self.seqs[self._active].compact()
+        self._active = sequence
+        tables = self.seqs.setdefault(sequence, _SeqTables(c))
+        tables.conf += conf.astype(np.int64).reshape(c, c)
         cl = cells.select(~self._ignored[cells.gt_cls])
-        tables = self.seqs.setdefault(str(sequence), _SeqTables())
         if self.variant == "nuscenes":
             self._add_nuscenes(cl, tables)
         elif self.mode is Mode.OFFICIAL:
@@ -146,20 +162,19 @@ class LSTQAccumulator:
         same = (other.spec, other.min_points, other.mode, other.variant)
         if same != (self.spec, self.min_points, self.mode, self.variant):
             raise ValueError("cannot merge accumulators with different classes, min_points, mode or variant")
-        self.conf += other.conf
         for seq, tables in other.seqs.items():
-            self.seqs.setdefault(seq, _SeqTables()).merge(tables)
+            self.seqs.setdefault(seq, _SeqTables(self.spec.n_classes)).merge(tables)
         self.frames += other.frames
         return self
 
     # -- results --------------------------------------------------------------------------
-    def association(self) -> tuple[float, int, np.ndarray]:
-        """``(numerator, thing tubes, per-class numerator (C,))`` of S_assoc."""
+    def association(self, sequences: list[str] | None = None) -> tuple[float, int, np.ndarray]:
+        """``(numerator, thing tubes, per-class numerator (C,))`` of S_assoc (all or some sequences)."""
         c = self.spec.n_classes
         total = 0.0
         per_class = np.zeros(c, dtype=np.float64)
         n_thing = 0
-        for seq in sorted(self.seqs):
+        for seq in sorted(self.seqs if sequences is None else sequences):
             t = self.seqs[seq]
             tkeys, tsize = t.tubes.items()
             pkeys, psize = t.preds.items()
@@ -183,13 +198,16 @@ class LSTQAccumulator:
             total += math.fsum(per_tube)
         return total, n_thing, per_class
 
-    def result(self) -> LSTQResult:
-        """LSTQ and its parts so far (does not change the state; calling twice gives the same)."""
+    def result(self, sequence: str | None = None) -> LSTQResult:
+        """LSTQ and its parts so far, over all sequences or one (idempotent: the state is not changed)."""
         spec = self.spec
-        num, n_thing, _ = self.association()
+        if sequence is not None and sequence not in self.seqs:
+            raise KeyError(f"no frames of sequence {sequence!r} were scored")
+        num, n_thing, _ = self.association(None if sequence is None else [sequence])
         with np.errstate(divide="ignore", invalid="ignore"):
             s_assoc = float(np.float64(num) / np.float64(n_thing))
-        iou, union = semantic_iou(self.conf, spec.ignore)
+        conf = self.conf if sequence is None else self.seqs[sequence].conf
+        iou, union = semantic_iou(conf, spec.ignore)
         inc = spec.include
         if self.variant == "nuscenes":
             s_cls = float(iou[inc].mean())
@@ -224,4 +242,4 @@ def _group(keys: np.ndarray, counts: np.ndarray, mask: np.ndarray) -> tuple[np.n
     return k, np.bincount(inv, weights=counts[mask], minlength=k.size).astype(np.int64)
 
 
-__all__ = ["EPS", "VARIANTS", "LSTQAccumulator"]
+__all__ = ["VARIANTS", "LSTQAccumulator"]

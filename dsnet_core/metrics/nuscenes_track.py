@@ -17,7 +17,8 @@ split a scene into consecutive chunks and merge them in temporal order.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -76,6 +77,16 @@ class TrackingResult:
     miou: float
     per_class_ptq: dict[str, float]
     per_class_sptq: dict[str, float]
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready values (NaN/inf as null)."""
+        out: dict[str, object] = {"mode": str(self.mode)}
+        for key, value in asdict(self).items():
+            if isinstance(value, float):
+                out[key] = value if math.isfinite(value) else None
+            elif isinstance(value, dict):
+                out[key] = {k: (v if math.isfinite(v) else None) for k, v in value.items()}
+        return out
 
 
 class PanopticTrackingAccumulator:

@@ -94,14 +94,19 @@ class PanopticAccumulator:
         conf = conf.astype(np.int64).reshape(c, c)
         cl = cells.select(~self._ignored[cells.gt_cls])
         tp, fp, fn, iou_sum, matches = self._match(cl)
-        self.conf += conf
-        self.tp += tp
-        self.fp += fp
-        self.fn += fn
-        for k in np.flatnonzero(iou_sum):
-            self._iou[k].add(iou_sum[k])
+        frame = FramePQ(tp, fp, fn, iou_sum, conf, cl.n_points, matches)
+        self.add_frame(frame)
+        return frame
+
+    def add_frame(self, frame: FramePQ) -> None:
+        """Add a frame's counts computed by another accumulator with the same settings."""
+        self.conf += frame.conf
+        self.tp += frame.tp
+        self.fp += frame.fp
+        self.fn += frame.fn
+        for k in np.flatnonzero(frame.iou_sum):
+            self._iou[k].add(frame.iou_sum[k])
         self.frames += 1
-        return FramePQ(tp, fp, fn, iou_sum, conf, cl.n_points, matches)
 
     def _match(self, cl: Cells) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Matches]:
         c = self.spec.n_classes
@@ -189,6 +194,7 @@ class PanopticAccumulator:
                 int(self.tp[k]),
                 int(self.fp[k]),
                 int(self.fn[k]),
+                int(k) in spec.things,
             )
             for k in inc
         }

@@ -28,7 +28,7 @@ def as_mode(mode: Mode | str) -> Mode:
 
 @dataclass(frozen=True)
 class ClassScore:
-    """Scores of one train class (all in [0, 1])."""
+    """Scores of one train class (in [0, 1]) and its segment counts."""
 
     pq: float
     sq: float
@@ -37,6 +37,7 @@ class ClassScore:
     tp: int
     fp: int
     fn: int
+    thing: bool = False
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,20 @@ class EvalResult:
         }
         out["frames"] = self.frames
         return out
+
+
+def class_rows(result: EvalResult, **extra: object) -> list[dict[str, object]]:
+    """One row per class (``class, thing, pq, sq, rq, iou, tp, fp, fn, mode`` + ``extra``)."""
+    return [
+        {"class": name, **asdict(c), "mode": str(result.mode), **extra}
+        for name, c in result.panoptic.per_class.items()
+    ]
+
+
+def summary_row(result: EvalResult, **extra: object) -> dict[str, object]:
+    """The run-level (or sequence-level) scores as one flat row: ``to_dict`` without ``per_class``."""
+    row = {k: v for k, v in result.to_dict().items() if k != "per_class"}
+    return {**row, **extra}
 
 
 def _json_float(x: float) -> float | None:

@@ -152,3 +152,36 @@ def test_data_config_sets_split_and_ignored_classes(log, tmp_path):
         if seq == "13":
             ev.add(gt, pred, frame=name, sequence=seq)
     assert report["pq"] == ev.result().panoptic.pq
+
+
+def _predictions_from(log_root: Path, out_root: Path, perturb) -> None:
+    for label in sorted(log_root.glob("sequences/*/labels/*.label")):
+        seq = label.parent.parent.name
+        pred = perturb(kitti.read_label(label))
+        kitti.write_label(out_root / "sequences" / seq / "predictions" / label.name, pred)
+
+
+def test_eval_on_a_synth_log_against_itself_and_a_perturbed_copy(synth_log, tmp_path):
+    same, noisy = tmp_path / "same", tmp_path / "noisy"
+    _predictions_from(synth_log, same, lambda lab: lab)
+    rng = np.random.default_rng(3)
+    _predictions_from(synth_log, noisy, lambda lab: _perturb(rng, lab))
+    reports = {}
+    for name, pred, mode in (
+        ("same", same, "corrected"),
+        ("same_off", same, "official"),
+        ("noisy", noisy, "official"),
+    ):
+        out = tmp_path / f"{name}.json"
+        res = _invoke(
+            "--gt", synth_log, "--pred", pred, "--sequences", "00,01", "--mode", mode, "--json", out
+        )
+        assert res.exit_code == 0, res.output
+        reports[name] = json.loads(out.read_text())
+    same_r, off_r, noisy_r = reports["same"], reports["same_off"], reports["noisy"]
+    assert same_r["frames"] == 12 and same_r["mode"] == "corrected"
+    present = [c for c in same_r["per_class"].values() if c["iou"] > 0]
+    assert len(present) >= 5 and all(c["pq"] == 1.0 and c["iou"] == 1.0 for c in present)
+    assert same_r["lstq"] == 1.0 and same_r["s_assoc"] == 1.0 and same_r["s_cls"] == 1.0
+    assert off_r["pq"] == same_r["pq"] and off_r["s_assoc"] <= 1.0
+    assert noisy_r["pq"] < same_r["pq"] and noisy_r["lstq"] < 1.0

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from dsnet_core.metrics.evaluator import PanopticEvaluator
-from tests.dsnet_core.metrics.conftest import random_sequence
+from tests.dsnet_core.metrics.frames import random_sequence
 from tests.dsnet_core.metrics.ref_4dpls import Ref4DPLS
 
 CAR, TRUCK, ROAD, SIDEWALK = 1, 4, 9, 11

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dsnet_core.metrics.evaluator import PanopticEvaluator
-from tests.dsnet_core.metrics.conftest import raw_frame
+from tests.dsnet_core.metrics.frames import raw_frame
 
 
 def _frames(kitti, seed=0):
@@ -76,3 +76,43 @@ def test_report_dict_has_the_issue_keys_and_no_nan(kitti):
     assert list(d)[:2] == ["mode", "pq"] and d["s_assoc"] is None and d["lstq"] is None
     assert d["per_class"]["road"] == {"pq": 1.0, "sq": 1.0, "rq": 1.0, "iou": 1.0} and d["frames"] == 1
     json.loads(json.dumps(d, allow_nan=False))
+
+
+@pytest.mark.parametrize("mode", ["official", "corrected"])
+def test_per_sequence_results_equal_scoring_each_sequence_alone(kitti, mode):
+    frames = _frames(kitti, seed=2)
+    both = PanopticEvaluator(kitti, min_points=20, mode=mode)
+    alone = {"00": PanopticEvaluator(kitti, min_points=20, mode=mode)}
+    alone["01"] = PanopticEvaluator(kitti, min_points=20, mode=mode)
+    half = PanopticEvaluator(kitti, min_points=20, mode=mode)
+    for k, (seq, name, gt, pred) in enumerate(frames):
+        (both if k % 2 else half).add(gt, pred, frame=name, sequence=seq)
+        alone[seq].add(gt, pred, frame=name, sequence=seq)
+    per_seq = both.merge(half).result_by_sequence()
+    assert list(per_seq) == ["00", "01"]
+    for seq, ev in alone.items():
+        assert per_seq[seq] == ev.result() and per_seq[seq].frames == 4
+    assert both.result() != per_seq["00"]
+
+
+def test_table_rows_for_classes_and_runs(kitti):
+    from dsnet_core.metrics import class_rows, summary_row
+
+    ev = PanopticEvaluator(kitti, min_points=1)
+    ev.add(
+        np.array([40] * 10 + [10 | (1 << 16)] * 5, np.uint32), np.array([40] * 15, np.uint32), sequence="08"
+    )
+    res = ev.result_by_sequence()["08"]
+    rows = class_rows(res, sequence="08")
+    assert len(rows) == 19 and rows[0]["class"] == "car" and rows[0]["thing"] is True
+    road = next(r for r in rows if r["class"] == "road")
+    assert (road["thing"], road["tp"], road["fn"], road["mode"], road["sequence"]) == (
+        False,
+        1,
+        0,
+        "official",
+        "08",
+    )
+    assert road["iou"] == pytest.approx(10 / 15)
+    run = summary_row(res, run="r1")
+    assert "per_class" not in run and run["frames"] == 1 and run["run"] == "r1" and run["pq_things"] == 0.0

@@ -90,6 +90,8 @@ def test_ground_truth_against_itself_is_perfect():
     # PTQ averages classes with ground truth; S_cls (and so PQ, LSTQ) count absent classes as 0
     assert (r.tq, r.ptq, r.sptq, r.s_assoc) == pytest.approx((1.0, 1.0, 1.0, 1.0), abs=1e-12)
     assert r.pq == pytest.approx(ev.result().pq) and r.s_cls == pytest.approx(len(present) / 16)
+    d = r.to_dict()
+    assert d["mode"] == "official" and d["tq"] == pytest.approx(1.0) and set(d["per_class_ptq"]) >= {"car"}
 
 
 @pytest.mark.peer

@@ -54,7 +54,7 @@ def test_toy_example_of_the_pq_paper():
 
 
 def test_ground_truth_against_itself_is_perfect(kitti):
-    from tests.dsnet_core.metrics.conftest import raw_frame
+    from tests.dsnet_core.metrics.frames import raw_frame
 
     rng = np.random.default_rng(0)
     for mode in ("official", "corrected"):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dsnet_core.metrics.evaluator import PanopticEvaluator
-from tests.dsnet_core.metrics.conftest import raw_frame
+from tests.dsnet_core.metrics.frames import raw_frame
 
 try:
     with contextlib.redirect_stdout(io.StringIO()):

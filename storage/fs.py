@@ -35,7 +35,10 @@ class RootFS:
     def __init__(self, uri: str | Path, storage_options: dict[str, Any] | None = None) -> None:
         self.uri = str(uri)
         self.storage_options = dict(storage_options or {})
-        self.fs, root = fsspec.core.url_to_fs(self.uri, **self.storage_options)
+        opts = dict(self.storage_options)
+        if self.uri.startswith("s3://"):
+            opts.setdefault("use_listings_cache", False)  # other writers change listings under us
+        self.fs, root = fsspec.core.url_to_fs(self.uri, **opts)
         self.local = _is_local(self.fs)
         self.root = str(Path(root).resolve()) if self.local else root.rstrip("/")
         if self.local:

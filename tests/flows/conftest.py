@@ -29,3 +29,35 @@ def cli_env(prefect_api_url):
 
 def cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "flows.cli", *args]
+
+
+@pytest.fixture(scope="session")
+def s3_endpoint():
+    """A loopback S3 (moto's threaded server); AWS_* variables point s3fs and subprocesses at it."""
+    import logging
+
+    import s3fs
+    from moto.server import ThreadedMotoServer
+
+    logging.getLogger("werkzeug").setLevel(logging.WARNING)
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    _, port = server.get_host_and_port()
+    env = {
+        "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}",
+        "AWS_ACCESS_KEY_ID": "test",
+        "AWS_SECRET_ACCESS_KEY": "test",
+        "AWS_DEFAULT_REGION": "us-east-1",
+    }
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    s3fs.S3FileSystem(skip_instance_cache=True).mkdir("dsnet-test")
+    try:
+        yield env
+    finally:
+        server.stop()
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v

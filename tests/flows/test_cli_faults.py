@@ -1,0 +1,217 @@
+"""Real `dsnet label` processes: SIGKILL in the middle of align, concurrent runs, S3, orphan servers."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from storage.run import RunStore
+from tasks.runner import run_stage_plain, stage_state
+from tests.flows.conftest import REPO, cli
+from tests.logs import make_log
+
+ARGS = ("--scans", "3", "--stride", "1", "--block-size", "1")
+N_FRAMES = 24
+N_VOLUMES = N_FRAMES - 2
+
+
+@pytest.fixture(scope="module")
+def big_log(tmp_path_factory):
+    """24 frames of ~12k points: align (22 blocks) takes long enough to be killed in the middle."""
+    return make_log(tmp_path_factory.mktemp("biglog"), ("00",), n_frames=N_FRAMES, n_ground=12000)
+
+
+@pytest.fixture(scope="module")
+def reference(big_log, tmp_path_factory):
+    """An uninterrupted run of the same stage functions (plain loop)."""
+    store = RunStore(tmp_path_factory.mktemp("ref") / "run")
+    run = {"data": str(big_log), "stages": {"align": {"scans": 3, "stride": 1}}, "options": {"block_size": 1}}
+    store.write_run_config("ref", run)
+    for stage in ("ingest", "align"):
+        run_stage_plain(store, "00", stage, run, "ref")
+    return store
+
+
+def _wait(cond, timeout: float, what: str, proc=None) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return
+        if proc is not None and proc.poll() is not None:
+            out = proc.stdout.read() if proc.stdout else ""
+            pytest.fail(f"process ended (rc {proc.returncode}) before {what}:\n{out[-3000:]}")
+        time.sleep(0.02)
+    pytest.fail(f"timed out waiting for {what}")
+
+
+def _assert_same_as_reference(store: RunStore, reference: RunStore) -> None:
+    for stage in ("ingest", "align"):
+        assert store.read_manifest("00", stage).status == "done"
+        assert store.read_manifest("00", stage).fingerprint != ""
+    a, b = store.arrays("00", "align"), reference.arrays("00", "align")
+    assert a.n_items == b.n_items == N_VOLUMES and a.done().all()
+    assert np.array_equal(a.n_points(), b.n_points())
+    for name in ("points", "source_frame", "source_index", "labels"):
+        assert np.array_equal(a.group[name][:], b.group[name][:]), name
+    for stage, table in (("ingest", "frames"), ("align", "volumes")):
+        assert store.read_table("00", stage, table).equals(reference.read_table("00", stage, table))
+
+
+def _result_files(store: RunStore) -> list[str]:
+    """Every object under the store that a reader could take for a result (not hidden, not partial)."""
+    fs, root = store.root.fs, store.root.root
+    names = [p[len(root) :] for p in fs.find(root)]
+    return [
+        n for n in names if not any(part.startswith(".") for part in n.split("/")) and ".partial" not in n
+    ]
+
+
+@pytest.mark.parametrize("backend", ["local", pytest.param("s3", marks=pytest.mark.slow)])
+def test_sigkill_in_align_then_resume(backend, big_log, reference, cli_env, tmp_path, request):
+    env = dict(cli_env)
+    if backend == "s3":
+        env.update(request.getfixturevalue("s3_endpoint"))
+        root = f"s3://dsnet-test/fault-{uuid.uuid4().hex[:8]}"
+    else:
+        root = str(tmp_path / "run")
+    store = RunStore(root)
+    proc = subprocess.Popen(
+        cli("label", str(big_log), "--run", root, *ARGS),
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+
+        def align_half_done() -> bool:
+            m = store.read_manifest("00", "align")
+            return (
+                m is not None
+                and m.status == "running"
+                and len(store.completed_blocks("00", "align", m.fingerprint)) >= 3
+            )
+
+        _wait(align_half_done, 180, "align had finished 3 blocks", proc)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    state, _, n_done = stage_state(store, "00", "align")
+    assert state == "partial" and 3 <= n_done < N_VOLUMES, (state, n_done)
+    assert store.read_manifest("00", "ingest").status == "done"
+    visible = _result_files(store)
+    assert not any("tables/volumes" in n for n in visible)  # align's table is written only when it is done
+    assert all(n.endswith("part-0.parquet") for n in visible if "tables/" in n)
+    status = subprocess.run(
+        cli("status", root), cwd=REPO, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert f"partial ({n_done} of {N_VOLUMES} blocks)" in status.stdout.replace("\n", " ").replace("│", "")
+
+    rerun = subprocess.run(
+        cli("label", str(big_log), "--run", root, *ARGS),
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert rerun.returncode == 0, rerun.stdout[-3000:] + rerun.stderr[-3000:]
+    run = RunStore(root).read_run_config()
+    record = RunStore(root).root.read_json(f"runs/{run['run_id']}.json")
+    actions = {r["stage"]: (r["action"], r["blocks_run"]) for r in record["summary"]}
+    assert actions == {"ingest": ("skip", 0), "align": ("resume", N_VOLUMES - n_done)}
+    _assert_same_as_reference(RunStore(root), reference)
+
+
+@pytest.mark.slow
+def test_two_simultaneous_runs(big_log, reference, cli_env, tmp_path):
+    root = str(tmp_path / "run")
+    cmd = cli("label", str(big_log), "--run", root, *ARGS, "--lock-wait", "300")
+    procs = [
+        subprocess.Popen(
+            cmd, cwd=REPO, env=cli_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+        for _ in range(2)
+    ]
+    outs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs[0][-2000:] + outs[1][-2000:]
+    store = RunStore(root)
+    runs = [store.root.read_json(f"runs/{name}") for name in store.root.listdir("runs")]
+    actions = sorted(tuple(r["action"] for r in rec["summary"]) for rec in runs)
+    # one run did the work; the other waited for its locks and then found everything done
+    assert actions == [("fresh", "fresh"), ("skip", "skip")]
+    _assert_same_as_reference(store, reference)
+
+
+def test_second_run_names_the_holder(big_log, cli_env, tmp_path):
+    root = tmp_path / "run"
+    holder = subprocess.Popen(["sleep", "60"])  # a live process on this host holds the lock
+    try:
+        lock = root / "sequences/00/ingest/lock.json"
+        lock.parent.mkdir(parents=True)
+        rec = {"host": os.uname().nodename, "pid": holder.pid, "run_id": "other-run", "acquired": time.time()}
+        lock.write_text(json.dumps({**rec, "heartbeat": time.time()}))
+        res = subprocess.run(
+            cli("label", str(big_log), "--run", str(root)),
+            cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+    finally:
+        holder.kill()
+        holder.wait()
+    assert res.returncode == 2
+    msg = " ".join(res.stderr.split())
+    assert "sequences/00/ingest/lock.json: locked by another run" in msg
+    assert f"pid {holder.pid}, run other-run" in msg
+    assert RunStore(root).read_manifest("00", "ingest") is None  # it wrote nothing
+
+
+def _children(pid: int) -> list[tuple[int, str]]:
+    out = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read().replace(b"\0", b" ").decode()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == pid:
+            out.append((int(entry), cmd))
+    return out
+
+
+@pytest.mark.slow
+def test_killed_cli_leaves_no_prefect_server(tmp_path):
+    log = make_log(tmp_path / "log", ("00",), n_frames=3)
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
+    env.update(PYTHONPATH=str(REPO), PREFECT_HOME=str(tmp_path / "prefect-home"))
+    proc = subprocess.Popen(
+        cli("label", str(log), "--run", str(tmp_path / "run")), cwd=REPO, env=env,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    servers: list[int] = []
+
+    def server_started() -> bool:
+        servers[:] = [pid for pid, cmd in _children(proc.pid) if "uvicorn" in cmd]
+        return bool(servers)
+
+    try:
+        _wait(server_started, 120, "the temporary Prefect server to start", proc)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    _wait(lambda: not os.path.exists(f"/proc/{servers[0]}") or _zombie(servers[0]), 30, "the server to exit")
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from dsnet_core.oracle import CentreNoise, box_centres, noisy, radius_components, windows
+from dsnet_core.oracle4d import CentreNoise, box_centres, noisy, radius_components, windows
 
 
 def test_box_centres_are_tight_box_centres_not_centroids():

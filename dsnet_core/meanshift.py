@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from dsnet_core.radius import radius_sums
+from dsnet_core.radius import RadiusIndex
 
 
 def bin_seeds(x: np.ndarray, bandwidth: float) -> np.ndarray:
@@ -58,10 +58,10 @@ def mean_shift(x: np.ndarray, bandwidth: float, max_iter: int = 300) -> tuple[np
     completed = np.zeros(s, dtype=np.int64)
     stop = 1e-3 * bandwidth
     radii = np.array([bandwidth], dtype=np.float64)
-    vals = np.concatenate([xf, np.ones((xf.shape[0], 1))], axis=1)[None]
+    index = RadiusIndex(xf, radii, np.concatenate([xf, np.ones((xf.shape[0], 1))], axis=1)[None])
     while active.any():
         idx = np.flatnonzero(active)
-        sums = radius_sums(means[idx], xf, radii, vals)[0]
+        sums = index.sums(means[idx])[0]
         n = sums[:, 3].astype(np.int64)
         counts[idx] = n
         empty = n == 0

@@ -1,10 +1,13 @@
-"""Fixed-radius neighbour sums on a uniform cell grid (CPU, numba).
+"""Fixed-radius neighbour sums over a k-d tree with subtree summaries (CPU, numba).
 
 ``radius_sums(queries, points, radii, values)[j, a] = Σ_b values[j, b]`` over the points ``b``
-with ``‖queries[a] − points[b]‖² ≤ radii[j]²``. Squared distances are exact differences,
-``dx·dx + dy·dy + dz·dz`` in the dtype of the inputs (the same expression as the dense kernel,
-so both draw the same boundaries); sums accumulate in float64. No pair list is materialised:
-each query visits the 27 grid cells (edge = largest radius) around it.
+with ``‖queries[a] − points[b]‖² ≤ radii[j]²``. The pointwise test is exact differences,
+``dx·dx + dy·dy + dz·dz`` in the dtype of the inputs (the expression of the dense kernel, so both
+draw the same boundaries). A subtree whose box lies wholly inside a radius (with a 1e-6 relative
+margin, so no point of it could fail the pointwise test) contributes its precomputed sum at once;
+one wholly outside (same margin) is skipped; only the rest is visited point by point. Seeds that
+have converged into tight clusters therefore cost about one visit per cluster, not one per pair.
+Sums accumulate in float64.
 """
 
 from __future__ import annotations
@@ -12,7 +15,68 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_MAX_CELL_KEY = 2**62
+_LEAF_SIZE = 16
+_MARGIN = 1e-6
+
+
+class RadiusIndex:
+    """Points, radii and values prepared once for many :meth:`sums` queries.
+
+    Args:
+        points: (P, 3) float32 or float64 positions in metres.
+        radii: (K,) radii in metres, ascending.
+        values: (K, P, C) values; ``values[j]`` is summed for radius ``radii[j]``.
+    """
+
+    def __init__(self, points: np.ndarray, radii: np.ndarray, values: np.ndarray) -> None:
+        radii = np.asarray(radii, dtype=np.float64)
+        if radii.ndim != 1 or radii.size == 0 or np.any(np.diff(radii) < 0) or radii[0] <= 0:
+            raise ValueError(f"radii must be positive and ascending, got {radii}")
+        k, n_p, c = values.shape
+        if k != radii.size or n_p != points.shape[0] or points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(
+                f"values {values.shape} do not match radii {radii.shape} and points {points.shape}"
+            )
+        if not np.isfinite(points).all():
+            raise ValueError("positions hold NaN or inf")
+        self.dtype = points.dtype
+        self.radii = radii
+        self.shape = (k, c)
+        self.empty = n_p == 0
+        if self.empty:
+            return
+        pts = np.ascontiguousarray(points)
+        order, self.start, self.end, self.left = _build_tree(pts)
+        self.ps = pts[order]
+        self.vs = np.ascontiguousarray(np.transpose(values, (1, 0, 2))[order], dtype=np.float64)  # (P, K, C)
+        self.lo, self.hi, self.node_sums = _summaries(self.ps, self.vs, self.start, self.end, self.left)
+
+    def sums(self, queries: np.ndarray) -> np.ndarray:
+        """float64 (K, Q, C): for each radius and query, the sum of the values of the points within."""
+        if queries.dtype != self.dtype:
+            raise ValueError(f"queries ({queries.dtype}) and points ({self.dtype}) must share a dtype")
+        out = np.zeros((self.shape[0], queries.shape[0], self.shape[1]))
+        if queries.shape[0] == 0 or self.empty:
+            return out
+        if not np.isfinite(queries).all():
+            raise ValueError("positions hold NaN or inf")
+        r2 = (self.radii * self.radii).astype(self.dtype)
+        q = np.ascontiguousarray(queries)
+        _query(
+            q,
+            self.ps,
+            self.vs,
+            r2,
+            self.radii**2,
+            self.lo,
+            self.hi,
+            self.node_sums,
+            self.start,
+            self.end,
+            self.left,
+            out,
+        )
+        return out
 
 
 def radius_sums(queries: np.ndarray, points: np.ndarray, radii: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -22,104 +86,148 @@ def radius_sums(queries: np.ndarray, points: np.ndarray, radii: np.ndarray, valu
         queries: (Q, 3) float32 or float64 positions in metres.
         points: (P, 3) positions, same dtype as ``queries``.
         radii: (K,) radii in metres, ascending.
-        values: (K, P, C) float64; ``values[j]`` is summed for radius ``radii[j]``.
+        values: (K, P, C) values; ``values[j]`` is summed for radius ``radii[j]``.
 
     Returns:
         float64 (K, Q, C) sums.
     """
-    if queries.dtype != points.dtype:
-        raise ValueError(f"queries ({queries.dtype}) and points ({points.dtype}) must share a dtype")
-    radii = np.asarray(radii, dtype=np.float64)
-    if radii.ndim != 1 or radii.size == 0 or np.any(np.diff(radii) < 0) or radii[0] <= 0:
-        raise ValueError(f"radii must be positive and ascending, got {radii}")
-    k, n_p, c = values.shape
-    if k != radii.size or n_p != points.shape[0]:
-        raise ValueError(f"values {values.shape} do not match radii {radii.shape} and points {points.shape}")
-    out = np.zeros((k, queries.shape[0], c))
-    if queries.shape[0] == 0 or n_p == 0:
-        return out
-    if not (np.isfinite(queries).all() and np.isfinite(points).all()):
-        raise ValueError("positions hold NaN or inf")
-    # a hair wider than the largest radius so that float32 rounding of a distance that passes the
-    # test can never put the pair two cells apart
-    cell = float(radii[-1]) * (1.0 + 1e-5)
-    lo = np.minimum(queries.min(axis=0), points.min(axis=0)).astype(np.float64)
-    hi = np.maximum(queries.max(axis=0), points.max(axis=0)).astype(np.float64)
-    dims = (np.floor((hi - lo) / cell).astype(np.int64) + 3).astype(np.int64)
-    if float(dims[0]) * float(dims[1]) * float(dims[2]) >= _MAX_CELL_KEY:
-        raise ValueError(f"positions span too large a box ({hi - lo} m) for radius {cell} m")
-    r2 = (radii * radii).astype(queries.dtype)
-    _radius_sums(
-        np.ascontiguousarray(queries),
-        np.ascontiguousarray(points),
-        r2,
-        np.ascontiguousarray(values, dtype=np.float64),
-        lo,
-        cell,
-        dims,
-        out,
-    )
-    return out
+    return RadiusIndex(points, radii, values).sums(queries)
 
 
 @numba.njit(cache=True)
-def _cell_keys(x: np.ndarray, lo: np.ndarray, cell: float, dims: np.ndarray) -> np.ndarray:
-    keys = np.empty(x.shape[0], dtype=np.int64)
-    for i in range(x.shape[0]):
-        ix = np.int64(np.floor((x[i, 0] - lo[0]) / cell)) + 1
-        iy = np.int64(np.floor((x[i, 1] - lo[1]) / cell)) + 1
-        iz = np.int64(np.floor((x[i, 2] - lo[2]) / cell)) + 1
-        keys[i] = (ix * dims[1] + iy) * dims[2] + iz
-    return keys
+def _build_tree(pts):
+    """Median-split k-d tree; node ``i`` covers ``order[start[i]:end[i]]``; leaves have left = -1.
+
+    The two children of a node are created together, after it (right = left + 1).
+    """
+    m = pts.shape[0]
+    cap = 2 * (m // (_LEAF_SIZE // 2) + 1) + 1
+    order = np.arange(m)
+    start = np.empty(cap, dtype=np.int64)
+    end = np.empty(cap, dtype=np.int64)
+    left = np.full(cap, -1, dtype=np.int64)
+    start[0], end[0] = 0, m
+    n_nodes = 1
+    stack = np.empty(128, dtype=np.int64)
+    stack[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        node = stack[top]
+        lo_i, hi_i = start[node], end[node]
+        if hi_i - lo_i <= _LEAF_SIZE:
+            continue
+        best_axis, best_ext = 0, -1.0
+        for d in range(3):
+            mn, mx = np.inf, -np.inf
+            for s in range(lo_i, hi_i):
+                v = np.float64(pts[order[s], d])
+                mn = min(mn, v)
+                mx = max(mx, v)
+            if mx - mn > best_ext:
+                best_ext, best_axis = mx - mn, d
+        if best_ext <= 0.0:
+            continue  # identical points stay one leaf
+        idx = order[lo_i:hi_i].copy()
+        keys = np.empty(hi_i - lo_i)
+        for s in range(hi_i - lo_i):
+            keys[s] = pts[idx[s], best_axis]
+        srt = np.argsort(keys, kind="mergesort")
+        for s in range(hi_i - lo_i):
+            order[lo_i + s] = idx[srt[s]]
+        mid = lo_i + (hi_i - lo_i) // 2
+        left[node] = n_nodes
+        start[n_nodes], end[n_nodes] = lo_i, mid
+        start[n_nodes + 1], end[n_nodes + 1] = mid, hi_i
+        stack[top] = n_nodes
+        stack[top + 1] = n_nodes + 1
+        top += 2
+        n_nodes += 2
+    return order, start[:n_nodes].copy(), end[:n_nodes].copy(), left[:n_nodes].copy()
 
 
 @numba.njit(cache=True)
-def _radius_sums(q, p, r2, values, lo, cell, dims, out):
-    k = r2.shape[0]
-    c = values.shape[2]
-    pkeys = _cell_keys(p, lo, cell, dims)
-    order = np.argsort(pkeys, kind="mergesort")
-    skeys = pkeys[order]
-    ps = p[order]
-    # unique occupied cells and their ranges in the sorted order
-    n_cells = 1
-    for i in range(1, skeys.shape[0]):
-        if skeys[i] != skeys[i - 1]:
-            n_cells += 1
-    ukeys = np.empty(n_cells, dtype=np.int64)
-    ustart = np.empty(n_cells + 1, dtype=np.int64)
-    ukeys[0] = skeys[0]
-    ustart[0] = 0
-    u = 0
-    for i in range(1, skeys.shape[0]):
-        if skeys[i] != skeys[i - 1]:
-            u += 1
-            ukeys[u] = skeys[i]
-            ustart[u] = i
-    ustart[n_cells] = skeys.shape[0]
-    qkeys = _cell_keys(q, lo, cell, dims)
-    stride_x = dims[1] * dims[2]
-    stride_y = dims[2]
+def _summaries(ps, vs, start, end, left):
+    n = start.shape[0]
+    k, c = vs.shape[1], vs.shape[2]
+    lo = np.empty((n, 3))
+    hi = np.empty((n, 3))
+    sums = np.zeros((n, k, c))
+    for node in range(n - 1, -1, -1):  # children before parents
+        if left[node] < 0:
+            for d in range(3):
+                lo[node, d] = np.inf
+                hi[node, d] = -np.inf
+            for s in range(start[node], end[node]):
+                for d in range(3):
+                    lo[node, d] = min(lo[node, d], ps[s, d])
+                    hi[node, d] = max(hi[node, d], ps[s, d])
+                sums[node] += vs[s]
+        else:
+            a, b = left[node], left[node] + 1
+            for d in range(3):
+                lo[node, d] = min(lo[a, d], lo[b, d])
+                hi[node, d] = max(hi[a, d], hi[b, d])
+            sums[node] = sums[a] + sums[b]
+    return lo, hi, sums
+
+
+@numba.njit(cache=True)
+def _query(q, ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
+    k, c = vs.shape[1], vs.shape[2]
+    stack_node = np.empty(256, dtype=np.int64)
+    stack_jlo = np.empty(256, dtype=np.int64)
+    stack_jhi = np.empty(256, dtype=np.int64)
+    acc = np.empty((k, c))
+    right_of = left + 1  # siblings are created together
     for a in range(q.shape[0]):
         qx, qy, qz = q[a, 0], q[a, 1], q[a, 2]
-        for ox in range(-1, 2):
-            for oy in range(-1, 2):
-                for oz in range(-1, 2):
-                    key = qkeys[a] + ox * stride_x + oy * stride_y + oz
-                    pos = np.searchsorted(ukeys, key)
-                    if pos >= n_cells or ukeys[pos] != key:
-                        continue
-                    for s in range(ustart[pos], ustart[pos + 1]):
-                        dx = ps[s, 0] - qx
-                        dy = ps[s, 1] - qy
-                        dz = ps[s, 2] - qz
-                        d2 = dx * dx + dy * dy + dz * dz
-                        if d2 > r2[k - 1]:
-                            continue
-                        b = order[s]
-                        j = k - 1
-                        while j >= 0 and d2 <= r2[j]:
-                            for ch in range(c):
-                                out[j, a, ch] += values[j, b, ch]
-                            j -= 1
+        acc[:] = 0.0
+        top = 0
+        stack_node[0], stack_jlo[0], stack_jhi[0] = 0, 0, k - 1
+        top = 1
+        while top > 0:
+            top -= 1
+            node, jlo, jhi = stack_node[top], stack_jlo[top], stack_jhi[top]
+            mind2 = 0.0
+            maxd2 = 0.0
+            for d in range(3):
+                x = np.float64(q[a, d])
+                below = lo[node, d] - x
+                above = x - hi[node, d]
+                if below > 0:
+                    mind2 += below * below
+                elif above > 0:
+                    mind2 += above * above
+                far = max(abs(x - lo[node, d]), abs(x - hi[node, d]))
+                maxd2 += far * far
+            j = jhi
+            while j >= jlo and maxd2 <= r2_64[j] * (1.0 - 1e-6):
+                for ch in range(c):
+                    acc[j, ch] += sums[node, j, ch]
+                j -= 1
+            new_hi = j
+            new_lo = jlo
+            while new_lo <= new_hi and mind2 > r2_64[new_lo] * (1.0 + 1e-6):
+                new_lo += 1
+            if new_lo > new_hi:
+                continue
+            if left[node] < 0:
+                for s in range(start[node], end[node]):
+                    dx = ps[s, 0] - qx
+                    dy = ps[s, 1] - qy
+                    dz = ps[s, 2] - qz
+                    d2 = dx * dx + dy * dy + dz * dz
+                    j = new_hi
+                    while j >= new_lo and d2 <= r2[j]:
+                        for ch in range(c):
+                            acc[j, ch] += vs[s, j, ch]
+                        j -= 1
+            else:
+                stack_node[top], stack_jlo[top], stack_jhi[top] = left[node], new_lo, new_hi
+                stack_node[top + 1], stack_jlo[top + 1], stack_jhi[top + 1] = right_of[node], new_lo, new_hi
+                top += 2
+        for j in range(k):
+            for ch in range(c):
+                out[j, a, ch] = acc[j, ch]
     return out

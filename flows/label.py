@@ -71,14 +71,21 @@ def label(
     from_stage: str | None = None,
     force: bool = False,
     storage_options: dict[str, Any] | None = None,
+    until: str | None = None,
 ) -> list[dict[str, Any]]:
-    """The body of both flows. Returns one summary row per (sequence, stage)."""
+    """The body of both flows. Returns one summary row per (sequence, stage).
+
+    ``until`` stops after that stage (default: run every stage).
+    """
     logger = get_run_logger()
     store = RunStore(root, storage_options)
     opts = RunOptions.model_validate(options or {})
     order = stage_order()
-    if from_stage is not None and from_stage not in order:
-        raise ValueError(f"unknown stage {from_stage!r}; stages are {order}")
+    for name in (from_stage, until):
+        if name is not None and name not in order:
+            raise ValueError(f"unknown stage {name!r}; stages are {order}")
+    if until is not None:
+        order = order[: order.index(until) + 1]
     forced = set(order) if force else ({from_stage, *downstream_of(from_stage)} if from_stage else set())
     if sequences is None:
         from dsnet_core.io.semantickitti import SemanticKittiReader
@@ -212,9 +219,10 @@ def label_sequence(
     from_stage: str | None = None,
     force: bool = False,
     storage_options: dict[str, Any] | None = None,
+    until: str | None = None,
 ) -> list[dict[str, Any]]:
-    """Label one sequence: every stage, skipping what the store already holds."""
-    return label(data, root, [sequence], stages, options, from_stage, force, storage_options)
+    """Label one sequence: every stage (or up to ``until``), skipping what the store already holds."""
+    return label(data, root, [sequence], stages, options, from_stage, force, storage_options, until)
 
 
 @flow(name="label-dataset", persist_result=False, validate_parameters=False)
@@ -227,9 +235,10 @@ def label_dataset(
     from_stage: str | None = None,
     force: bool = False,
     storage_options: dict[str, Any] | None = None,
+    until: str | None = None,
 ) -> list[dict[str, Any]]:
-    """Label several sequences in parallel (all of the log when ``sequences`` is None)."""
-    return label(data, root, sequences, stages, options, from_stage, force, storage_options)
+    """Label several sequences in parallel (all of the log when ``sequences`` is None), up to ``until``."""
+    return label(data, root, sequences, stages, options, from_stage, force, storage_options, until)
 
 
 def task_runner(workers: int | None = None, dask_address: str | None = None):

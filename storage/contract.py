@@ -115,6 +115,45 @@ VOLUMES = TableSpec(
     ),
 )
 
+N_CLASSES = 20  # SemanticKITTI train ids 0..19 (the probs row width of ``infer``)
+INS_DIM = 32  # instance feature width of ``infer``
+
+INSTANCES = TableSpec(
+    "instances",
+    pa.schema(
+        [
+            ("index", pa.int32()),  # volume index
+            ("id", pa.int32()),  # raw (volume-local) instance id, as in fuse's ``inst``
+            ("class_id", pa.int32()),  # winning thing class (train id)
+            ("n_points", pa.int64()),
+            ("agreement", pa.float32()),  # fraction of the instance's points predicted as class_id
+            ("confidence", pa.float32()),  # mean predicted probability of class_id over its points
+            ("centroid", pa.list_(pa.float32(), 3)),  # metres, volume (reference sensor) frame
+            ("box_min", pa.list_(pa.float32(), 3)),  # axis-aligned box, metres
+            ("box_max", pa.list_(pa.float32(), 3)),
+        ]
+    ),
+)
+
+TRACKS = TableSpec(
+    "tracks",
+    pa.schema(
+        [
+            ("id", pa.int32()),  # sequence-wide instance id (upper 16 bits of the label)
+            ("class_id", pa.int32()),  # majority train id over the track's points
+            ("raw_class", pa.int32()),  # the same through learning_map_inv
+            ("first_frame", pa.int32()),  # frame indices (the ingest frame table's ``index``)
+            ("last_frame", pa.int32()),
+            ("n_points", pa.int64()),
+            ("n_frames", pa.int32()),
+            ("confidence", pa.float64()),  # point-weighted mean of fuse's instance confidence
+            ("min_link_iou", pa.float64()),  # lowest IoU that carried the id across volumes (NaN: none)
+            ("frames", pa.list_(pa.int32())),  # frames the track has points in
+            ("frame_points", pa.list_(pa.int64())),  # its points in each of those frames
+        ]
+    ),
+)
+
 CONTRACTS: dict[str, StageContract] = {
     "ingest": StageContract("ingest", item="frame", tables=(FRAMES,)),
     "align": StageContract(
@@ -129,5 +168,55 @@ CONTRACTS: dict[str, StageContract] = {
             ArraySpec("labels", "uint32", optional=True, doc="raw semantic | instance << 16 (ground truth)"),
         ),
         tables=(VOLUMES,),
+    ),
+    "infer": StageContract(
+        "infer",
+        item="volume",
+        arrays=(
+            ArraySpec("sem", "uint8", doc="predicted train id (argmax over 1..19)"),
+            ArraySpec(
+                "probs",
+                "uint8",
+                trailing=(N_CLASSES,),
+                doc="softmax probabilities quantised to uint8: p = q / 255 (abs error <= 1/510)",
+            ),
+            ArraySpec("offsets", "float32", trailing=(3,), doc="point -> instance centre, metres"),
+            ArraySpec("features", "float16", trailing=(INS_DIM,), doc="instance features for shifting"),
+        ),
+    ),
+    "shift": StageContract(
+        "shift",
+        item="volume",
+        arrays=(
+            ArraySpec("instance", "int32", doc="raw instance id 1..K on thing points, 0 elsewhere"),
+            ArraySpec(
+                "seed_position",
+                "float32",
+                trailing=(3,),
+                optional=True,
+                doc="converged position (metres) at the points chosen as shifting seeds, NaN elsewhere",
+            ),
+        ),
+    ),
+    "fuse": StageContract(
+        "fuse",
+        item="volume",
+        arrays=(
+            ArraySpec("sem", "uint8", doc="train id after the instances' majority vote"),
+            ArraySpec("inst", "int32", doc="raw (volume-local) instance id, 0 for stuff"),
+        ),
+        tables=(INSTANCES,),
+    ),
+    "stitch": StageContract(
+        "stitch",
+        item="frame",
+        arrays=(
+            ArraySpec(
+                "label",
+                "uint32",
+                doc="raw semantic | sequence-wide instance id << 16, in the frame's original point order",
+            ),
+        ),
+        tables=(TRACKS,),
     ),
 }

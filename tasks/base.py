@@ -49,12 +49,15 @@ class Plan:
         max_points: padded row length of the per-point arrays.
         omit: optional arrays of the contract not written (e.g. labels of an unlabelled log).
         meta: small JSON-able facts the block function needs (stored in the manifest).
+        blocks: the item indices of each block, overriding ``RunOptions.block_size`` (e.g. one
+            block per sequence for a stage that is sequential over its items).
     """
 
     n_items: int
     max_points: int = 0
     omit: tuple[str, ...] = ()
     meta: dict[str, Any] = field(default_factory=dict)
+    blocks: list[list[int]] | None = None
 
 
 @dataclass

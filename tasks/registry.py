@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from tasks.align import AlignStage
 from tasks.base import Stage
+from tasks.infer import InferStage
 from tasks.ingest import IngestStage
 
-STAGES: dict[str, Stage] = {s.name: s for s in (IngestStage(), AlignStage())}
+STAGES: dict[str, Stage] = {s.name: s for s in (IngestStage(), AlignStage(), InferStage())}
 
 
 def stage_order() -> list[str]:

@@ -102,6 +102,8 @@ def prepare_stage(
         store.create_arrays(sequence, stage, plan.n_items, plan.max_points, plan.omit)
     size = max(1, RunOptions.model_validate(run.get("options", {})).block_size)
     blocks = [list(range(i, min(i + size, plan.n_items))) for i in range(0, plan.n_items, size)]
+    if plan.blocks is not None:
+        blocks = [list(b) for b in plan.blocks if b]
     manifest = Manifest(
         stage=stage,
         sequence=sequence,

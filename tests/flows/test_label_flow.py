@@ -1,4 +1,5 @@
-"""label-dataset on a 2-sequence log through a real Prefect server: run, no-op rerun, --scans change."""
+"""label-dataset on a 2-sequence log through a real Prefect server: run, no-op rerun, --scans change
+(ingest and align only; the model stages are tested in test_label_model_flow)."""
 
 import numpy as np
 import pytest
@@ -21,7 +22,7 @@ def test_label_dataset_resumes_exactly(prefect_api_url, two_seq_log, tmp_path):
 
     root = str(tmp_path / "run")
     opts = {"block_size": 2}
-    first = label_dataset(str(two_seq_log), root, None, {"align": {"scans": 2}}, opts)
+    first = label_dataset(str(two_seq_log), root, None, {"align": {"scans": 2}}, opts, until="align")
     assert _actions(first) == {(s, st): "fresh" for s in ("00", "01") for st in ("ingest", "align")}
     store = RunStore(root)
     fps = {
@@ -30,10 +31,10 @@ def test_label_dataset_resumes_exactly(prefect_api_url, two_seq_log, tmp_path):
     arrays = store.arrays("01", "align")
     assert arrays.done().all() and arrays.n_items == 5  # windows of 2 with stride 1 over 6 frames
 
-    again = label_dataset(str(two_seq_log), root, None, {"align": {"scans": 2}}, opts)
+    again = label_dataset(str(two_seq_log), root, None, {"align": {"scans": 2}}, opts, until="align")
     assert set(_actions(again).values()) == {"skip"} and all(r["blocks_run"] == 0 for r in again)
 
-    third = label_dataset(str(two_seq_log), root, ["00", "01"], {"align": {"scans": 3}}, opts)
+    third = label_dataset(str(two_seq_log), root, ["00", "01"], {"align": {"scans": 3}}, opts, until="align")
     acts = _actions(third)
     assert acts[("00", "ingest")] == acts[("01", "ingest")] == "skip"
     assert acts[("00", "align")] == acts[("01", "align")] == "fresh"
@@ -41,7 +42,9 @@ def test_label_dataset_resumes_exactly(prefect_api_url, two_seq_log, tmp_path):
     assert store.read_manifest("00", "align").fingerprint != fps[("00", "align")]
     assert store.read_manifest("00", "align").plan["windows"] == [[0, 1, 2], [2, 3, 4], [3, 4, 5]]
 
-    forced = label_dataset(str(two_seq_log), root, ["00"], {"align": {"scans": 3}}, opts, from_stage="align")
+    forced = label_dataset(
+        str(two_seq_log), root, ["00"], {"align": {"scans": 3}}, opts, from_stage="align", until="align"
+    )
     assert _actions(forced) == {("00", "ingest"): "skip", ("00", "align"): "fresh"}
     vol = store.arrays("00", "align").read_item(0)
     assert set(np.unique(vol["source_frame"])) == {0, 1, 2}
@@ -54,7 +57,7 @@ def test_label_sequence_and_artifacts(prefect_api_url, two_seq_log, tmp_path):
 
     from flows.label import label_sequence
 
-    summary = label_sequence(str(two_seq_log), str(tmp_path / "run"), "01")
+    summary = label_sequence(str(two_seq_log), str(tmp_path / "run"), "01", until="align")
     assert _actions(summary) == {("01", "ingest"): "fresh", ("01", "align"): "fresh"}
     with get_client(sync_client=True) as client:
         for key, kind in (

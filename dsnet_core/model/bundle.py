@@ -1,0 +1,97 @@
+"""The bundled demo model, the shifting MLPs' weights next to a checkpoint, and a checkpoint's
+content digest (what the ``infer`` stage puts in its fingerprint).
+
+A checkpoint folder (see :mod:`dsnet_core.model.checkpoint`) may also hold::
+
+    CKPT/shift.safetensors    the dynamic-shifting MLPs (``DynamicShift.state_dict()``), optional
+
+The bundled model lives in the package at ``dsnet_core/data/models/tiny/`` (shipped by
+``pyproject``'s ``data/models/*``). Until a trained checkpoint is placed there,
+:func:`bundled_checkpoint` returns None and callers must say so instead of pretending.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file
+
+from dsnet_core.model.checkpoint import CheckpointError, read_card, save_tensors, sha256_file
+
+SHIFT_WEIGHTS = "shift.safetensors"
+BUNDLED_NAME = "tiny"
+
+
+def bundled_dir() -> Path:
+    """Where the bundled demo checkpoint lives inside the package (it may not exist yet)."""
+    return Path(__file__).resolve().parents[1] / "data" / "models" / BUNDLED_NAME
+
+
+def bundled_checkpoint() -> Path | None:
+    """The bundled demo checkpoint folder, or None when no trained model is bundled yet."""
+    path = bundled_dir()
+    return path if (path / "card.json").is_file() and (path / "model.safetensors").is_file() else None
+
+
+def resolve_checkpoint(path: str | Path | None) -> Path:
+    """``path``, or the bundled model when None.
+
+    Raises:
+        CheckpointError: None given and no bundled model, or ``path`` holds no model card.
+    """
+    if path is None:
+        found = bundled_checkpoint()
+        if found is None:
+            raise CheckpointError(
+                bundled_dir(), "no bundled model yet: pass a checkpoint (dsnet label --checkpoint PATH)"
+            )
+        return found
+    path = Path(path).expanduser()
+    read_card(path)  # typed error naming the file when it is not a checkpoint
+    return path
+
+
+def checkpoint_digest(path: str | Path) -> str:
+    """A content digest of a checkpoint: the card (which holds the weights' sha256) and the
+    shifting weights' sha256. Cheap: the network weights are not re-read (``load_checkpoint``
+    verifies them against the card's hash when the model is loaded).
+
+    Returns:
+        32 hex digits.
+    """
+    path = Path(path)
+    card = read_card(path)
+    h = hashlib.blake2b(digest_size=16)
+    h.update(
+        json.dumps({k: v for k, v in card.__dict__.items() if k != "code_version"}, sort_keys=True).encode()
+    )
+    shift = path / SHIFT_WEIGHTS
+    h.update(sha256_file(shift).encode() if shift.is_file() else b"no-shift-weights")
+    return h.hexdigest()
+
+
+def save_shift_weights(path: str | Path, module: torch.nn.Module) -> Path:
+    """Write a :class:`~dsnet_core.shifting.DynamicShift`'s weights into checkpoint folder ``path``."""
+    out = Path(path) / SHIFT_WEIGHTS
+    bandwidths = ",".join(str(b) for b in getattr(module, "bandwidths", ()))
+    save_tensors(module.state_dict(), out, metadata={"bandwidths": bandwidths})
+    return out
+
+
+def load_shift_weights(path: str | Path) -> dict[str, torch.Tensor] | None:
+    """The shifting MLPs' state dict stored with checkpoint ``path``, or None if it has none.
+
+    Raises:
+        CheckpointError: the file exists but cannot be read.
+    """
+    file = Path(path) / SHIFT_WEIGHTS
+    if not file.is_file():
+        return None
+    try:
+        return load_file(str(file))
+    except (SafetensorError, OSError) as exc:
+        raise CheckpointError(file, f"cannot read the shifting weights: {exc}") from exc

@@ -1,0 +1,42 @@
+"""A tiny random-weight DS-Net checkpoint for wiring tests (a real checkpoint, not a trained model)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+
+from dsnet_core.labels import load_label_map
+from dsnet_core.model.bundle import save_shift_weights
+from dsnet_core.model.checkpoint import ModelCard, class_map_of, save_checkpoint
+from dsnet_core.model.cylinder import CylinderGrid
+from dsnet_core.model.network import DSNet
+from dsnet_core.model.presets import ModelConfig
+from dsnet_core.shifting import DynamicShift
+
+# coarse grid and narrow layers: ~0.1 s a 27k-point scan on one CPU thread; 20 classes and
+# 32-d features as the infer contract stores
+TEST_CONFIG = ModelConfig(
+    width=2,
+    point_mlp=(8, 8),
+    compress=4,
+    ins_dim=32,
+    grid=CylinderGrid(size=(48, 36, 8), min_bound=(0.0, -math.pi, -3.0), max_bound=(50.0, math.pi, 2.0)),
+)
+
+
+def make_checkpoint(path: Path, seed: int = 0, shift_weights: bool = True) -> Path:
+    """Write a random-weight checkpoint (seeded) to folder ``path``; with random shifting MLPs."""
+    torch.manual_seed(seed)
+    model = DSNet(TEST_CONFIG)
+    card = ModelCard(
+        architecture={},
+        class_map=class_map_of(load_label_map("semantic-kitti")),
+        training_data={"note": f"random weights, seed {seed}: wiring tests only"},
+        code_version="test",
+    )
+    save_checkpoint(path, model, card)
+    if shift_weights:
+        save_shift_weights(path, DynamicShift().eval())
+    return Path(path)

@@ -20,6 +20,7 @@ def label(
     ),
     block_size: int = typer.Option(25, help="Frames or volumes per task."),
     lock_wait: float = typer.Option(0.0, help="Seconds to wait for another run's lock before failing."),
+    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
 ) -> None:
     """Label a log into a run store, resuming whatever is already done there."""
     from flows.server import prefect_api, quiet_prefect_env
@@ -41,7 +42,7 @@ def label(
 
             flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
             with _progress_bars():
-                summary = flow(data, run, seqs, stages, options, from_stage, force)
+                summary = flow(data, run, seqs, stages, options, from_stage, force, until=until)
     except (DsnetError, StoreError, ValueError) as exc:
         typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
         raise typer.Exit(code=2) from None

@@ -71,12 +71,14 @@ def _print_summary(summary) -> None:
 from flows.commands import label as _label  # noqa: E402
 from flows.commands import synth as _synth  # noqa: E402
 from flows.commands.eval import eval_command  # noqa: E402
+from flows.commands.train import train as _train  # noqa: E402
 
 app.command()(_synth.synth)
 app.command()(_synth.demo)
 app.command(name="eval")(eval_command)
 app.command("label")(_label.label)
 app.command("status")(_label.status)
+app.command(name="train")(_train)
 
 
 def main() -> None:

@@ -1,0 +1,1 @@
+"""Training of the DS-Net network: data, augmentation, the staged loop, resumable state."""

@@ -1,0 +1,277 @@
+"""The staged training loop (semantic → instance head → shifting MLPs), checkpointing every epoch.
+
+An interrupted run resumes from the last completed epoch: the model card in the checkpoint says
+which epochs are done; the optimiser state is restored when it belongs to that same epoch.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dsnet_core.errors import ConfigError
+from dsnet_core.io.reader import LogReader
+from dsnet_core.labels import LabelMap
+from dsnet_core.model.checkpoint import (
+    CARD,
+    ModelCard,
+    class_map_of,
+    load_checkpoint,
+    read_card,
+    save_checkpoint,
+)
+from dsnet_core.model.losses import class_weights, instance_centres, offset_loss, semantic_loss
+from dsnet_core.model.network import DSNet
+from dsnet_core.model.presets import ModelConfig
+from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
+from dsnet_core.train.metrics import ConfusionMeter
+from dsnet_core.train.state import load_train_state, save_train_state
+
+log = logging.getLogger(__name__)
+STAGES = ("semantic", "offset", "shift")
+
+
+class StageUnavailableError(ConfigError):
+    """A training stage whose code is not available yet."""
+
+
+@dataclass
+class TrainConfig:
+    """Training schedule.
+
+    Attributes:
+        stage: "semantic", "offset", "shift" or "all".
+        epochs: epochs per stage.
+        lr: Adam learning rate.
+        scans: scans per 4D volume (1 = single-scan).
+        batch_size: volumes per step.
+        seed: the run's seed (augmentation and shuffling per epoch derive from it).
+        augment: apply yaw/flip/scale/translation augmentation.
+        device: "cpu" or "cuda".
+    """
+
+    stage: str = "all"
+    epochs: dict[str, int] = field(default_factory=lambda: {"semantic": 10, "offset": 5, "shift": 2})
+    lr: float = 1e-3
+    scans: int = 1
+    batch_size: int = 1
+    seed: int = 0
+    augment: bool = True
+    device: str = "cpu"
+
+    def stages(self) -> list[str]:
+        if self.stage == "all":  # the shifting stage joins once its training is wired (issue 6)
+            return ["semantic", "offset"]
+        if self.stage not in STAGES:
+            raise ConfigError(
+                f"unknown training stage '{self.stage}' (choose semantic, offset, shift or all)"
+            )
+        return [self.stage]
+
+
+StepCallback = Callable[[str, int, int, int, float], None]
+
+
+class Trainer:
+    """Trains a :class:`DSNet` on volumes read through a :class:`LogReader`.
+
+    Args:
+        out: checkpoint folder (written every epoch).
+        model_config: architecture (ignored when resuming: the checkpoint's is used and must match).
+        reader, sequences: training data.
+        val_reader, val_sequences: validation data.
+        label_map: class map.
+        config: schedule.
+        resume: continue from the checkpoint in ``out``.
+    """
+
+    def __init__(
+        self,
+        out: str | Path,
+        model_config: ModelConfig,
+        reader: LogReader,
+        sequences: list[str],
+        val_reader: LogReader,
+        val_sequences: list[str],
+        label_map: LabelMap,
+        config: TrainConfig,
+        resume: bool = False,
+    ) -> None:
+        self.out, self.cfg, self.label_map = Path(out), config, label_map
+        self.stages = config.stages()
+        if "shift" in self.stages:
+            raise StageUnavailableError(
+                "the 'shift' training stage is not yet available: it needs the dynamic-shifting module "
+                "(dsnet_core.shifting, issue 6) wired into training; train 'semantic' and 'offset' for now"
+            )
+        self.device = torch.device(config.device)
+        self.reader, self.val_reader = reader, val_reader
+        self.train_vols = volume_refs(reader, sequences, config.scans)
+        self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
+        if not self.train_vols:
+            raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
+        exists = (self.out / CARD).is_file()
+        if exists and not resume:
+            raise ConfigError(
+                f"{self.out} already holds a checkpoint: pass --resume, or choose another --out"
+            )
+        if resume and exists:
+            self.model, self.card = load_checkpoint(
+                self.out, self.device, expect_config=model_config, expect_label_map=label_map
+            )
+            log.info("resuming from %s (epochs done: %s)", self.out, self.card.epochs)
+        else:
+            torch.manual_seed(config.seed)
+            self.model = DSNet(model_config).to(self.device)
+            counts = class_counts(reader, self.train_vols, label_map)
+            self.card = ModelCard(
+                architecture=model_config.to_dict(),
+                class_map=class_map_of(label_map),
+                training_data={
+                    "root": str(reader.root),
+                    "sequences": list(sequences),
+                    "volumes": len(self.train_vols),
+                    "scans": config.scans,
+                    "fingerprint": data_fingerprint(reader, self.train_vols),
+                    "class_points": counts.tolist(),
+                    "val_root": str(val_reader.root),
+                    "val_sequences": list(val_sequences),
+                },
+                epochs={},
+                metrics=[],
+            )
+        self.card.training_data["train_config"] = asdict(config)
+        self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
+
+    # -- the schedule ----------------------------------------------------------------------
+    def run(self, on_step: StepCallback | None = None) -> ModelCard:
+        """Train every pending epoch of every stage; returns the final model card."""
+        for stage in self.stages:
+            done, total = self.card.epochs.get(stage, 0), self.cfg.epochs.get(stage, 0)
+            if done >= total:
+                continue
+            opt = self._optimizer(stage)
+            if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
+                log.info("restored optimiser state of %s epoch %d", stage, done)
+            for epoch in range(done, total):
+                t0 = time.perf_counter()
+                loss = self._train_epoch(stage, epoch, opt, on_step)
+                record = {"stage": stage, "epoch": epoch + 1, "train_loss": loss, **self.validate()}
+                record["seconds"] = round(time.perf_counter() - t0, 2)
+                self.card.metrics.append(record)
+                self.card.epochs[stage] = epoch + 1
+                self._save(stage, epoch + 1, opt)
+                log.info("%s epoch %d: loss %.4f, val mIoU %.4f", stage, epoch + 1, loss, record["val_miou"])
+        return self.card
+
+    def _optimizer(self, stage: str) -> torch.optim.Optimizer:
+        head = stage == "offset"
+        for name, p in self.model.named_parameters():
+            p.requires_grad_(name.startswith("ins_head.") if head else not name.startswith("ins_head."))
+        params = [p for p in self.model.parameters() if p.requires_grad]
+        return torch.optim.Adam(params, lr=self.cfg.lr)
+
+    def _set_modes(self, stage: str) -> None:
+        self.model.train()
+        if stage == "offset":  # frozen backbone: batch-norm statistics stay fixed
+            for mod in (self.model.point_encoder, self.model.backbone, self.model.sem_head):
+                mod.eval()
+
+    def _train_epoch(
+        self, stage: str, epoch: int, opt: torch.optim.Optimizer, on_step: StepCallback | None
+    ) -> float:
+        stage_idx = STAGES.index(stage)
+        rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch])
+        torch.manual_seed(int(rng.integers(2**31)))
+        order = rng.permutation(len(self.train_vols))
+        bs = self.cfg.batch_size
+        steps = (len(order) + bs - 1) // bs
+        self._set_modes(stage)
+        losses = []
+        for step in range(steps):
+            samples = [
+                load_sample(self.reader, self.train_vols[i], self.label_map)
+                for i in order[step * bs : (step + 1) * bs]
+            ]
+            if self.cfg.augment:
+                samples = [_with_points(s, augment(s.points, rng)) for s in samples]
+            loss = self._loss(stage, samples)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            losses.append(float(loss.detach()))
+            if on_step is not None:
+                on_step(stage, epoch + 1, step + 1, steps, losses[-1])
+        return float(np.mean(losses))
+
+    def _loss(self, stage: str, samples: list[Sample]) -> torch.Tensor:
+        clouds = [torch.from_numpy(s.points).to(self.device) for s in samples]
+        out = self.model(clouds, instance=stage == "offset")
+        if stage == "semantic":
+            sem = torch.from_numpy(np.concatenate([s.sem for s in samples])).to(self.device)
+            return semantic_loss(out.logits, sem, self.weights)
+        xyz = torch.cat([c[:, :3] for c in clouds])
+        keys = np.concatenate([s.inst + (b << 40) * (s.inst > 0) for b, s in enumerate(samples)])
+        valid = torch.from_numpy(np.concatenate([s.thing for s in samples])).to(self.device)
+        centres = instance_centres(xyz, torch.from_numpy(keys).to(self.device), valid)
+        return offset_loss(out.offsets, xyz, centres, valid)
+
+    # -- validation and files --------------------------------------------------------------
+    def validate(self) -> dict:
+        """Point mIoU (classes 1..C-1) and the eq. 1 offset error (metres) on the validation volumes."""
+        self.model.eval()
+        meter = ConfusionMeter(self.model.config.num_classes)
+        off_sum, off_n = 0.0, 0
+        with torch.inference_mode():
+            for refs in self.val_vols:
+                s = load_sample(self.val_reader, refs, self.label_map)
+                pts = torch.from_numpy(s.points).to(self.device)
+                out = self.model([pts])
+                pred = (out.logits[:, 1:].argmax(1) + 1).cpu().numpy()
+                meter.add(pred, s.sem)
+                if s.thing.any():
+                    valid = torch.from_numpy(s.thing).to(self.device)
+                    centres = instance_centres(pts[:, :3], torch.from_numpy(s.inst).to(self.device), valid)
+                    n = int(valid.sum())
+                    off_sum += float(offset_loss(out.offsets, pts[:, :3], centres, valid)) * n
+                    off_n += n
+        iou = meter.iou()
+        names = self.label_map.class_names
+        return {
+            "val_miou": meter.miou(),
+            "val_offset_l1": off_sum / off_n if off_n else float("nan"),
+            "val_iou": {names[c]: float(iou[c]) for c in range(1, len(iou)) if np.isfinite(iou[c])},
+        }
+
+    def _save(self, stage: str, epochs_done: int, opt: torch.optim.Optimizer) -> None:
+        self.out.mkdir(parents=True, exist_ok=True)
+        save_train_state(self.out, opt, {"stage": stage, "epochs": epochs_done})
+        save_checkpoint(self.out, self.model, self.card)
+        write_metrics_table(self.out, self.card.metrics)
+
+
+def _with_points(s: Sample, points: np.ndarray) -> Sample:
+    return Sample(points, s.sem, s.inst, s.thing, s.frame_index, s.name)
+
+
+def write_metrics_table(out: Path, metrics: list[dict]) -> None:
+    """``metrics.json`` (full records) and ``metrics.csv`` (scalars) beside the checkpoint."""
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    cols = ["stage", "epoch", "train_loss", "val_miou", "val_offset_l1", "seconds"]
+    with open(out / "metrics.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(metrics)
+
+
+def read_metrics(out: str | Path) -> list[dict]:
+    """The per-epoch records stored in a checkpoint's model card."""
+    return read_card(out).metrics

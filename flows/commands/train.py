@@ -1,0 +1,104 @@
+"""``dsnet train``: train the network on a labelled log (staged, resumable)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def parse_epochs(text: str) -> dict[str, int]:
+    """``"10"`` → 10 epochs for every stage; ``"semantic=10,offset=5"`` → per stage."""
+    if "=" not in text:
+        n = int(text)
+        return {"semantic": n, "offset": n, "shift": n}
+    out = {"semantic": 0, "offset": 0, "shift": 0}
+    for part in text.split(","):
+        name, _, value = part.partition("=")
+        if name.strip() not in out:
+            raise typer.BadParameter(f"unknown stage '{name}' in --epochs")
+        out[name.strip()] = int(value)
+    return out
+
+
+def train(
+    data: Path = typer.Argument(..., help="Training log root (SemanticKITTI layout)."),
+    out: Path = typer.Option(..., "--out", help="Checkpoint folder (written every epoch)."),
+    stage: str = typer.Option("all", help="semantic | offset | shift | all"),
+    scans: int = typer.Option(1, help="Scans per 4D volume (1 = single scan)."),
+    epochs: str = typer.Option("10", help="Epochs per stage: N, or e.g. 'semantic=20,offset=5'."),
+    device: str = typer.Option("cpu", help="cpu | cuda"),
+    resume: bool = typer.Option(False, "--resume", help="Continue the checkpoint in --out."),
+    preset: str = typer.Option("tiny", help="Model width preset: tiny | small | paper."),
+    sequences: str = typer.Option(None, help="Comma-separated training sequences (default: all)."),
+    val_data: Path = typer.Option(None, help="Validation log root (default: DATA)."),
+    val_sequences: str = typer.Option(None, help="Validation sequences (default: the training ones)."),
+    lr: float = typer.Option(1e-3, help="Adam learning rate."),
+    batch_size: int = typer.Option(1, help="Volumes per step."),
+    seed: int = typer.Option(0, help="Seed of initialisation, shuffling and augmentation."),
+    augment: bool = typer.Option(True, help="Yaw/flip/scale/translation augmentation."),
+    threads: int = typer.Option(1, help="Torch CPU threads."),
+) -> None:
+    """Train DS-Net (semantic → instance head → shifting) and write a checkpoint with a model card."""
+    import logging
+
+    import torch
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from dsnet_core.errors import DsnetError
+    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.labels import load_label_map
+    from dsnet_core.model.presets import get_preset
+    from dsnet_core.train.loop import TrainConfig, Trainer
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+    torch.set_num_threads(threads)
+    console = Console(stderr=True)
+    try:
+        label_map = load_label_map("semantic-kitti")
+        reader = SemanticKittiReader(data, label_map)
+        seqs = sequences.split(",") if sequences else reader.sequences()
+        val_reader = SemanticKittiReader(val_data, label_map) if val_data else reader
+        if val_sequences:
+            vseqs = val_sequences.split(",")
+        else:
+            vseqs = val_reader.sequences() if val_data else seqs
+        if not val_data and not val_sequences:
+            console.print("[yellow]no validation set given: validating on the training sequences[/]")
+        cfg = TrainConfig(
+            stage=stage,
+            epochs=parse_epochs(epochs),
+            lr=lr,
+            scans=scans,
+            batch_size=batch_size,
+            seed=seed,
+            augment=augment,
+            device=device,
+        )
+        trainer = Trainer(
+            out, get_preset(preset), reader, seqs, val_reader, vseqs, label_map, cfg, resume=resume
+        )
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("loss {task.fields[loss]:.4f}"),
+            TimeElapsedColumn(),
+            console=console,
+        ) as bar:
+            tasks: dict = {}
+
+            def on_step(stage_name: str, epoch: int, step: int, total: int, loss: float) -> None:
+                key = (stage_name, epoch)
+                if key not in tasks:
+                    tasks[key] = bar.add_task(f"{stage_name} epoch {epoch}", total=total, loss=loss)
+                bar.update(tasks[key], completed=step, loss=loss)
+
+            card = trainer.run(on_step=on_step)
+    except DsnetError as exc:
+        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+        raise typer.Exit(code=2) from exc
+    miou = card.metrics[-1]["val_miou"] if card.metrics else float("nan")
+    typer.echo(f"wrote checkpoint {out.resolve()} (epochs {card.epochs}, val mIoU {miou:.4f})")
+    typer.echo(f"metrics table: {out.resolve() / 'metrics.csv'}")

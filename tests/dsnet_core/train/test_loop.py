@@ -1,0 +1,79 @@
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+
+from dsnet_core.errors import ConfigError
+from dsnet_core.io.semantickitti import SemanticKittiReader
+from dsnet_core.labels import load_label_map
+from dsnet_core.model.checkpoint import load_checkpoint
+from dsnet_core.model.cylinder import CylinderGrid
+from dsnet_core.model.presets import PRESETS
+from dsnet_core.train.loop import StageUnavailableError, TrainConfig, Trainer
+from tests.helpers.tiny_log import write_tiny_log
+
+LM = load_label_map("semantic-kitti")
+# a coarse grid so that the tiny log's few thousand points fill their voxels
+GRID = CylinderGrid(size=(24, 32, 8), min_bound=(0.0, -math.pi, -2.0), max_bound=(24.0, math.pi, 1.5))
+TINY = replace(PRESETS["tiny"], grid=GRID)
+
+
+def trainer(root, out, resume=False, **kw):
+    reader = SemanticKittiReader(root)
+    cfg = TrainConfig(**{"augment": False, "lr": 0.01, **kw})
+    return Trainer(out, TINY, reader, ["00"], reader, ["00"], LM, cfg, resume=resume)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    return write_tiny_log(tmp_path_factory.mktemp("log"), frames=2)
+
+
+def test_resumed_training_equals_uninterrupted(log, tmp_path):
+    straight = trainer(log, tmp_path / "a", stage="semantic", epochs={"semantic": 2}).run()
+    trainer(log, tmp_path / "b", stage="semantic", epochs={"semantic": 1}).run()
+    resumed = trainer(log, tmp_path / "b", resume=True, stage="semantic", epochs={"semantic": 2}).run()
+    assert resumed.epochs == straight.epochs == {"semantic": 2}
+    assert [m["train_loss"] for m in resumed.metrics] == [m["train_loss"] for m in straight.metrics]
+    a, _ = load_checkpoint(tmp_path / "a")
+    b, _ = load_checkpoint(tmp_path / "b")
+    for (k, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
+        assert torch.equal(x, y), k
+    rows = (tmp_path / "b" / "metrics.csv").read_text().splitlines()
+    assert rows[0] == "stage,epoch,train_loss,val_miou,val_offset_l1,seconds" and len(rows) == 3
+
+
+def test_existing_checkpoint_needs_resume(log, tmp_path):
+    trainer(log, tmp_path, stage="semantic", epochs={"semantic": 1}).run()
+    with pytest.raises(ConfigError, match="already holds a checkpoint: pass --resume"):
+        trainer(log, tmp_path, stage="semantic", epochs={"semantic": 1})
+
+
+def test_shift_stage_not_yet_available(log, tmp_path):
+    with pytest.raises(StageUnavailableError, match="'shift' training stage is not yet available"):
+        trainer(log, tmp_path, stage="shift")
+    with pytest.raises(ConfigError, match="unknown training stage 'bogus'"):
+        trainer(log, tmp_path, stage="bogus")
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3600)
+def test_tiny_model_overfits_two_frames(log, tmp_path):
+    t = trainer(log, tmp_path, stage="all", epochs={"semantic": 24, "offset": 12})
+    card = t.run()
+    sem = [m for m in card.metrics if m["stage"] == "semantic"]
+    off = [m for m in card.metrics if m["stage"] == "offset"]
+    assert sem[-1]["val_miou"] > 0.9
+    assert sem[-1]["train_loss"] < 0.1 * sem[0]["train_loss"]
+    # the instance head learns while the backbone stays frozen (semantics unchanged)
+    assert off[-1]["val_offset_l1"] < 0.8 * sem[-1]["val_offset_l1"]
+    assert off[-1]["val_miou"] == sem[-1]["val_miou"]

@@ -21,6 +21,7 @@ from dsnet_core.synth.road import (
 
 BUILDING, FENCE, VEGETATION, TRUNK, POLE, TRAFFIC_SIGN, OTHER_OBJECT = 50, 51, 70, 71, 80, 81, 99
 SIDES = (1.0, -1.0)  # side 0 is the left (d > 0), side 1 the right
+SIDEWALK_BAND = 0.9  # outer band of the sidewalk where things stand (bikes, bins, people); no walking
 
 
 @dataclass
@@ -38,12 +39,14 @@ class Occupancy:
         self.circles.append((s, d, r))
         return True
 
-    def take_box(self, s: float, d: float, length: float, width: float, yaw: float) -> bool:
+    def take_box(
+        self, s: float, d: float, length: float, width: float, yaw: float, margin: float = 0.15
+    ) -> bool:
         """Take a ``length`` × ``width`` footprint turned by ``yaw`` from the road direction, covered
-        by a row of circles."""
+        by a row of circles ``margin`` wider than it."""
         n = max(1, int(np.ceil(length / width)))
         offsets = (np.arange(n) + 0.5) * (length / n) - length / 2
-        r = 0.5 * max(width, length / n) + 0.15
+        r = 0.5 * max(width, length / n) + margin
         circles = [(s + o * np.cos(yaw), d + o * np.sin(yaw), r) for o in offsets]
         if not all(self.free(*c) for c in circles):
             return False
@@ -64,6 +67,19 @@ class Street:
     layout: GroundLayout
     lots: list[Lot]
     parking: list[tuple[int, float, float]]  # (side, s0, s1) parking strips
+
+    def bulb_outs(self, side: int, min_length: float = 4.0) -> list[tuple[float, float]]:
+        """Raised (not parking) stretches ``(s0, s1)`` of the kerbside strip of ``side``."""
+        lay = self.layout
+        if lay.edges[side, 1, 0] - lay.edges[side, 0, 0] < 1.5:
+            return []
+        raised = np.concatenate([[False], lay.classes[side, 0] != PARKING, [False]])
+        starts = np.flatnonzero(raised[1:] & ~raised[:-1])
+        ends = np.flatnonzero(~raised[1:] & raised[:-1])
+        return [
+            (lay.s0 + a * lay.ds, lay.s0 + b * lay.ds) for a, b in zip(starts, ends, strict=True)
+            if (b - a) * lay.ds >= min_length
+        ]  # fmt: skip
 
     def ensure_parking(self, side: int, s0: float, s1: float) -> bool:
         """Turn the kerbside strip of ``side`` over ``[s0, s1]`` into parking; False if it has none."""
@@ -90,7 +106,7 @@ def make_layout(rng: np.random.Generator, s_lo: float, s_hi: float) -> Street:
     parking: list[tuple[int, float, float]] = []
     for side in range(2):
         widths = [
-            lanes * lane_w + 0.3,
+            lanes * lane_w + rng.uniform(1.3, 1.8),  # traffic lanes and a bike lane
             rng.uniform(2.1, 2.5) if rng.random() < 0.85 else 0.0,
             rng.uniform(1.0, 2.5) if rng.random() < 0.4 else 0.0,
             rng.uniform(2.5, 4.0),

@@ -70,7 +70,7 @@ def plan_sequence(seed: int, index: int, frames: int, config: SynthConfig | None
 def _ego_poses(scene: Scene, times: np.ndarray, height: float, jitter_deg: float, rng) -> np.ndarray:
     phase = rng.uniform(0, 2 * np.pi, 3)
     sway = 0.15 * np.sin(2 * np.pi * times / 7.0 + phase[0])
-    x, y, yaw = scene.road.pose_at(scene.ego_speed * times, scene.ego_d + sway)
+    x, y, yaw = scene.road.pose_at(scene.ego_s(times), scene.ego_d + sway)
     amp = np.deg2rad(jitter_deg)
     pitch = amp * np.sin(2 * np.pi * times / 1.3 + phase[1])
     roll = amp * np.sin(2 * np.pi * times / 1.9 + phase[2])

@@ -74,7 +74,7 @@ def _zone(s, d, g):
         for m in range(1, lanes):
             if abs(ad - m * meta[5]) < hw and dashed:
                 return LANE_MARKING, False
-        if abs(ad - (edges[side, 0, k] - 0.3)) < hw:
+        if abs(ad - lanes * meta[5]) < hw:  # the solid line between traffic and bike lane
             return LANE_MARKING, False
         return ROAD, False
     if ad < edges[side, 1, k]:

@@ -87,7 +87,8 @@ class GroundLayout:
     """Ground classes across the road, per side and per 1 m of arc length.
 
     Side 0 is the left (d > 0), side 1 the right (d < 0). Between the centre line and ``edges[:, 0]``
-    lies road (at z = 0, with lane markings); up to ``edges[:, 1]`` the kerbside strip of class
+    lies road (at z = 0): ``lanes`` traffic lanes with dashed lines, then a bike lane behind a
+    solid line; up to ``edges[:, 1]`` the kerbside strip of class
     ``classes[:, 0]`` (parking at z = 0, or raised grass/pavement); up to ``edges[:, 2]`` a grass strip
     (terrain, raised by the curb); up to ``edges[:, 3]`` sidewalk (raised); beyond it ``classes[:, 1]``
     (terrain or other-ground, raised). Empty strips have equal consecutive edges.

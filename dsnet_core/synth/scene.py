@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dsnet_core.synth.config import SynthConfig
-from dsnet_core.synth.layout import SIDES, Occupancy, Street, StuffPlacer, make_layout
+from dsnet_core.synth.layout import SIDES, SIDEWALK_BAND, Occupancy, Street, StuffPlacer, make_layout
 from dsnet_core.synth.primitives import PrimitiveSet
 from dsnet_core.synth.road import LAWN_END, PARKING_END, ROAD_EDGE, SIDEWALK_END, GroundLayout, Road
 from dsnet_core.synth.traffic import (
@@ -40,8 +40,9 @@ class Scene:
         static: world primitives that never move (stuff and parked things).
         actors: moving things.
         ego_d: the ego lane's lateral offset (metres).
-        ego_speed: m/s.
+        ego_speed: mean speed (m/s).
         things: instance id -> (raw SemanticKITTI id, moving).
+        ego_surge: (amplitude m/s, period s, phase rad) of the ego's speed oscillation.
     """
 
     road: Road
@@ -51,6 +52,14 @@ class Scene:
     ego_d: float
     ego_speed: float
     things: dict[int, tuple[int, bool]]
+    ego_surge: tuple[float, float, float] = (0.0, 1.0, 0.0)
+
+    def ego_s(self, t: np.ndarray) -> np.ndarray:
+        """Arc length of the ego at times ``t`` (s): mean speed plus a slow surge, so the drive
+        speeds up and slows down; it stays within ``2 · amplitude · period / 2π`` of uniform motion."""
+        amp, period, phase = self.ego_surge
+        w = 2 * np.pi / period
+        return self.ego_speed * t + amp / w * (np.sin(w * t + phase) - np.sin(phase))
 
     def primitives_at(self, t: float) -> PrimitiveSet:
         """All world primitives at time ``t`` (seconds)."""
@@ -60,6 +69,8 @@ class Scene:
 def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) -> Scene:
     """Draw a street around an ego drive of ``duration`` seconds."""
     ego_speed = float(rng.uniform(*config.ego_speed))
+    surge = (float(rng.uniform(0.0, 1.0)), float(rng.uniform(15.0, 30.0)), float(rng.uniform(0, 2 * np.pi)))
+    slack = 2 * surge[0] * surge[1] / (2 * np.pi)  # how far the surge moves the ego off uniform motion
     reach = config.view_radius
     s_lo, s_hi = -reach - 20.0, ego_speed * duration + reach + 20.0
     road = Road.generate(rng, s_lo - 400.0, s_hi + 400.0, config.min_curve_radius)
@@ -71,52 +82,56 @@ def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) 
     lanes, lane_w = lay.lanes, lay.lane_width
     ego_lane = int(rng.integers(1, lanes + 1))
     ego_d = -(ego_lane - 0.5) * lane_w
-    speeds = {ego_lane: ego_speed}
-    lane_speed = {-(m - 0.5) * lane_w: speeds.get(m, rng.uniform(6.0, 15.0)) for m in range(1, lanes + 1)}
-    lane_speed.update({(m - 0.5) * lane_w: -rng.uniform(6.0, 15.0) for m in range(1, lanes + 1)})
-    bike_d = {sign: sign * (lay.edge(side, ROAD_EDGE, 0.0) - 0.75) for side, sign in enumerate(SIDES)}
-    bike_speed = {sign: -sign * rng.uniform(3.5, 6.5) for sign in SIDES}
-    traffic.reserve(ego_d, -8.0, 8.0)
+    # every lane: (lateral offset, signed speed); actors of one lane share its speed, so never collide
+    roads = {
+        -(m - 0.5) * lane_w: ego_speed if m == ego_lane else rng.uniform(6.0, 15.0)
+        for m in range(1, lanes + 1)
+    }
+    roads.update({(m - 0.5) * lane_w: -rng.uniform(6.0, 15.0) for m in range(1, lanes + 1)})
+    bikes = {
+        sign: (sign * (lanes * lane_w + lay.edge(side, ROAD_EDGE, 0.0)) / 2, -sign * rng.uniform(3.5, 6.5))
+        for side, sign in enumerate(SIDES)
+    }
+    walks = {}  # (sign, k) -> (d, speed, share walking in pairs)
+    for side, sign in enumerate(SIDES):
+        # people walk on the inner part of the sidewalk; its outer SIDEWALK_BAND holds parked things
+        curb, outer = lay.edge(side, LAWN_END, 0.0), lay.edge(side, SIDEWALK_END, 0.0) - SIDEWALK_BAND
+        pairs = 0.35 if outer - curb >= 2.4 else 0.0
+        for k, (frac, direction) in enumerate(((0.3, 1.0), (0.75, -1.0))):
+            walks[sign, k] = (
+                sign * (curb + frac * (outer - curb)),
+                direction * rng.uniform(0.8, 1.6),
+                pairs * (k == 0),
+            )
+    traffic.reserve(ego_d, -8.0 - slack, 8.0 + slack)
 
-    _guaranteed(rng, traffic, street, ego_d, ego_speed, lane_speed, bike_d, bike_speed)
+    _guaranteed(rng, traffic, street, ego_d, ego_speed, roads, bikes, walks)
     traffic.park_street(config.parked)
     traffic.sidewalk_things(s_lo, s_hi)
 
     def window(speed: float) -> tuple[float, float]:
         # start positions from which an actor comes within ``reach`` of the ego during the drive
         rel = (speed - ego_speed) * duration
-        return -reach - max(0.0, rel), reach + max(0.0, -rel)
+        return -reach - max(0.0, rel) - slack, reach + max(0.0, -rel) + slack
 
     def vehicle():
         return [CAR, TRUCK, BUS, OTHER_VEHICLE, MOTORCYCLIST][rng.choice(5, p=[0.86, 0.03, 0.02, 0.03, 0.06])]
 
     dense = 1.0 / max(config.traffic, 1e-3)
-    for d, speed in lane_speed.items():
+    for d, speed in roads.items():
         traffic.fill_lane(d, speed, *window(speed), (15.0 * dense, 90.0 * dense), vehicle)
-    for sign in SIDES:
-        traffic.fill_lane(
-            bike_d[sign],
-            bike_speed[sign],
-            *window(bike_speed[sign]),
-            (40.0 * dense, 200.0 * dense),
-            lambda: BICYCLIST,
-        )
+    for d, speed in bikes.values():
+        traffic.fill_lane(d, speed, *window(speed), (40.0 * dense, 200.0 * dense), lambda: BICYCLIST)
     walk = 1.0 / max(config.pedestrians, 1e-3)
-    for side, sign in enumerate(SIDES):
-        curb, outer = lay.edge(side, LAWN_END, 0.0), lay.edge(side, SIDEWALK_END, 0.0)
-        for frac, direction in ((0.4, 1.0), (0.62, -1.0)):
-            speed = direction * rng.uniform(0.8, 1.6)
-            d = sign * (curb + frac * (outer - curb))
-            traffic.fill_lane(d, speed, *window(speed), (6.0 * walk, 60.0 * walk), lambda: PERSON)
+    for d, speed, pairs in walks.values():
+        traffic.fill_lane(d, speed, *window(speed), (6.0 * walk, 60.0 * walk), lambda: PERSON, pairs)
 
     placer = StuffPlacer(rng, road, street, occ)
     static = PrimitiveSet.concat([traffic.static(), placer.run().build()])
-    return Scene(road, lay, static, traffic.actors(), ego_d, ego_speed, traffic.things)
+    return Scene(road, lay, static, traffic.actors(), ego_d, ego_speed, traffic.things, surge)
 
 
-def _guaranteed(
-    rng, traffic: Traffic, street: Street, ego_d, ego_speed, lane_speed, bike_d, bike_speed
-) -> None:
+def _guaranteed(rng, traffic: Traffic, street: Street, ego_d, ego_speed, roads, bikes, walks) -> None:
     """One of each thing class within ~50 m ahead of the ego's start, where it can be seen."""
     lay = street.layout
     right, left = 1, 0
@@ -127,10 +142,10 @@ def _guaranteed(
         traffic.park(BICYCLE, s, -(sw - 0.35), rng.normal(0, 0.1))
         s += rng.uniform(2.0, 2.6)
     traffic.park(PERSON, rng.uniform(17.0, 22.0), -(sw - 0.35), rng.uniform(0, 2 * np.pi))
-    traffic.park(MOTORCYCLE, rng.uniform(12.0, 18.0), sw_left - 0.5, np.pi + rng.normal(0, 0.1))
-    traffic.drive(BICYCLIST, rng.uniform(14.0, 22.0), bike_d[-1.0], bike_speed[-1.0])
-    traffic.drive(CAR, rng.uniform(18.0, 26.0), ego_d, ego_speed)
-    opposite = min(d for d in lane_speed if d > 0)
+    traffic.park(MOTORCYCLE, rng.uniform(12.0, 18.0), sw_left - 0.45, np.pi + rng.normal(0, 0.05))
+    traffic.drive(BICYCLIST, rng.uniform(14.0, 22.0), *bikes[-1.0])
+    traffic.drive(CAR, rng.uniform(22.0, 30.0), ego_d, ego_speed)
+    opposite = min(d for d in roads if d > 0)
     s = rng.uniform(15.0, 25.0)
     unplaced = [TRUCK, OTHER_VEHICLE]
     if street.ensure_parking(left, 20.0, 60.0):  # a delivery truck and a van parked across the road
@@ -144,11 +159,7 @@ def _guaranteed(
     for cls in [MOTORCYCLIST, *unplaced, CAR]:  # what could not park drives towards the ego
         shape = SHAPES[cls](rng)
         s += shape.length / 2
-        traffic.drive(cls, s, opposite, lane_speed[opposite], shape)
+        traffic.drive(cls, s, opposite, roads[opposite], shape)
         s += shape.length / 2 + rng.uniform(6.0, 15.0)
-    traffic.drive(
-        PERSON,
-        rng.uniform(5.0, 15.0),
-        (lay.edge(left, LAWN_END, 10.0) + lay.edge(left, SIDEWALK_END, 10.0)) / 2,
-        -1.2,
-    )
+    d, speed, _ = walks[1.0, 1]  # the left sidewalk's lane walking towards the ego
+    traffic.drive(PERSON, rng.uniform(5.0, 15.0), d, speed)

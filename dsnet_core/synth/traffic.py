@@ -96,7 +96,8 @@ class Traffic:
     def park(self, cls: tuple[int, int], s: float, d: float, yaw_offset: float = 0.0, shape=None) -> bool:
         """Place a static thing at Frenet ``(s, d)``; False if the spot is taken."""
         shape = shape or SHAPES[cls](self.rng)
-        if not self.occ.take_box(s, d, shape.length, shape.width, yaw_offset):
+        margin = 0.15 if shape.length > 2.5 else 0.05
+        if not self.occ.take_box(s, d, shape.length, shape.width, yaw_offset, margin):
             return False
         x, y, h = self.road.pose_at(s, d)
         self._static.add_parts(
@@ -104,19 +105,28 @@ class Traffic:
         )
         return True
 
-    def drive(self, cls: tuple[int, int], s0: float, d: float, speed: float, shape=None) -> bool:
-        """Add a moving actor on the lane at offset ``d`` (all actors of a lane share its speed)."""
-        shape = shape or SHAPES[cls](self.rng)
+    def drive(
+        self, cls: tuple[int, int], s0: float, d: float, speed: float, shape=None, group: int = 1
+    ) -> bool:
+        """Add a moving actor on the lane at offset ``d`` (all actors of a lane share its speed);
+        ``group`` > 1 puts that many side by side (people walking together)."""
+        shapes = [shape or SHAPES[cls](self.rng)] + [SHAPES[cls](self.rng) for _ in range(group - 1)]
+        length = max(s.length for s in shapes)
         busy = self._lane_busy.setdefault(round(d, 3), [])
-        lo, hi = s0 - shape.length / 2 - 1.0, s0 + shape.length / 2 + 1.0
+        lo, hi = s0 - length / 2 - 1.0, s0 + length / 2 + 1.0
         if any(lo < b and a < hi for a, b in busy):
             return False
         busy.append((lo, hi))
-        actor = len(self._traj)
-        self._traj.append((s0, d, speed))
-        inst = self._new_instance(cls[1], True)
-        self._parts.add_parts(shape.parts, 0.0, 0.0, 0.0, cls[1], inst)
-        self._owner.extend([actor] * len(shape.parts))
+        width = 0.6 if group > 1 else 0.0
+        for k, sh in enumerate(shapes):
+            actor = len(self._traj)
+            lateral = (k - (group - 1) / 2) * width
+            self._traj.append(
+                (s0 + (self.rng.uniform(-0.25, 0.25) if group > 1 else 0.0), d + lateral, speed)
+            )
+            inst = self._new_instance(cls[1], True)
+            self._parts.add_parts(sh.parts, 0.0, 0.0, 0.0, cls[1], inst)
+            self._owner.extend([actor] * len(sh.parts))
         return True
 
     def reserve(self, d: float, lo: float, hi: float) -> None:
@@ -124,12 +134,20 @@ class Traffic:
         self._lane_busy.setdefault(round(d, 3), []).append((lo, hi))
 
     def fill_lane(
-        self, d: float, speed: float, lo: float, hi: float, gap: tuple[float, float], choose
+        self,
+        d: float,
+        speed: float,
+        lo: float,
+        hi: float,
+        gap: tuple[float, float],
+        choose,
+        pairs: float = 0.0,
     ) -> None:
-        """Spawn actors along ``[lo, hi]`` with random gaps; ``choose()`` returns a class."""
+        """Spawn actors along ``[lo, hi]`` with random gaps; ``choose()`` returns a class; a share
+        ``pairs`` of them walk in pairs."""
         s = lo + self.rng.uniform(0.0, gap[1])
         while s < hi:
-            self.drive(choose(), s, d, speed)
+            self.drive(choose(), s, d, speed, group=2 if self.rng.random() < pairs else 1)
             s += self.rng.uniform(*gap)
 
     def park_street(self, parked: float) -> None:
@@ -160,9 +178,25 @@ class Traffic:
                     )
 
     def sidewalk_things(self, s_lo: float, s_hi: float) -> None:
-        """Parked bicycles and standing people on the sidewalks."""
+        """Parked bicycles and standing people on the sidewalks; bike racks and groups of people on
+        the raised kerbside bays."""
         rng, lay = self.rng, self.street.layout
         for side, sign in enumerate(SIDES):
+            d = sign * (lay.edge(side, ROAD_EDGE, 0.0) + lay.edge(side, PARKING_END, 0.0)) / 2
+            for a, b in self.street.bulb_outs(side):
+                if b < s_lo or a > s_hi or rng.random() < 0.4:
+                    continue
+                s = rng.uniform(a + 0.5, max(a + 0.5, b - 4.0))
+                if rng.random() < 0.6:  # a bike rack: bicycles side by side, 0.7-0.9 m apart
+                    for _ in range(int(rng.integers(2, 8))):
+                        if s > b - 0.4:
+                            break
+                        self.park(BICYCLE, s, d, np.pi / 2 + rng.normal(0, 0.08))
+                        s += rng.uniform(0.7, 0.9)
+                else:  # people standing together
+                    for k in range(int(rng.integers(2, 5))):
+                        ang = 2 * np.pi * k / 4 + rng.normal(0, 0.2)
+                        self.park(PERSON, s + 0.65 * np.cos(ang), d + 0.6 * np.sin(ang), ang + np.pi)
             s = s_lo + rng.uniform(0.0, 20.0)
             while s < s_hi:
                 outer = lay.edge(side, SIDEWALK_END, s)

@@ -132,6 +132,45 @@ def test_parked_objects_stay_put_and_moving_ones_move(hdl64_log):
         assert np.linalg.norm(first - last) > 0.8, f"moving instance {inst} did not move"
 
 
+def _footprints_overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Separating-axis test of two convex quadrilaterals ``(4, 2)``."""
+    for poly in (a, b):
+        for k in range(4):
+            edge = poly[(k + 1) % 4] - poly[k]
+            normal = np.array([-edge[1], edge[0]])
+            pa, pb = a @ normal, b @ normal
+            if pa.max() < pb.min() or pb.max() < pa.min():
+                return False
+    return True
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_things_never_interpenetrate(seed):
+    """No two thing instances (parked or moving) share space at any time of a 10 s drive."""
+    plan = plan_sequence(seed, 0, 100)
+    for t in plan.times[::10]:
+        p = plan.scene.primitives_at(t)
+        p = p.select(p.instance > 0)
+        c, s = np.cos(p.yaw), np.sin(p.yaw)
+        corners = np.stack(
+            [p.center[:, :2] + np.stack([c * p.half[:, 0] * sx - s * p.half[:, 1] * sy,
+                                         s * p.half[:, 0] * sx + c * p.half[:, 1] * sy], axis=1)
+             for sx, sy in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1,
+        )  # fmt: skip
+        reach = np.hypot(p.half[:, 0], p.half[:, 1])
+        dist = np.linalg.norm(p.center[:, None, :2] - p.center[None, :, :2], axis=2)
+        z_overlap = (
+            np.abs(p.center[:, None, 2] - p.center[None, :, 2]) < p.half[:, None, 2] + p.half[None, :, 2]
+        )
+        near = (
+            (dist < reach[:, None] + reach[None, :]) & z_overlap & (p.instance[:, None] < p.instance[None, :])
+        )
+        for i, j in zip(*np.nonzero(near), strict=True):
+            assert not _footprints_overlap(corners[i], corners[j]), (
+                f"t={t:.1f}s: instances {p.instance[i]} and {p.instance[j]} overlap"
+            )
+
+
 def test_ground_heights_in_world(hdl64_log):
     reader, scans, labels = hdl64_log
     plan = plan_sequence(0, 0, FRAMES)

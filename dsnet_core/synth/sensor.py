@@ -26,6 +26,8 @@ class LidarSpec:
         far_dropout: extra loss probability at ``max_range`` for a black target (grows with range²).
         min_range: returns closer than this are discarded (metres).
         max_range: returns farther than this are discarded (metres).
+        beam_gains: ``(B,)`` per-laser remission gain (real units show ring-to-ring intensity
+            differences); empty means 1 for every beam.
     """
 
     name: str
@@ -37,6 +39,7 @@ class LidarSpec:
     far_dropout: float = 0.6
     min_range: float = 1.0
     max_range: float = 120.0
+    beam_gains: tuple[float, ...] = ()
 
     @property
     def beams(self) -> int:
@@ -73,9 +76,14 @@ def _vlp32_elevations() -> tuple[float, ...]:
     return tuple(float(v) for v in np.sort(el)[::-1])
 
 
+def _gains(beams: int, spread: float) -> tuple[float, ...]:
+    # fixed per model (seeded by the beam count), like the factory calibration of one unit
+    return tuple(float(g) for g in np.random.default_rng(beams).uniform(1 - spread, 1 + spread, beams))
+
+
 SENSORS: dict[str, LidarSpec] = {
-    "hdl64": LidarSpec("hdl64", _hdl64_elevations(), azimuth_steps=2048, max_range=120.0),
-    "vlp32": LidarSpec("vlp32", _vlp32_elevations(), azimuth_steps=1024, max_range=100.0),
+    "hdl64": LidarSpec("hdl64", _hdl64_elevations(), 2048, max_range=120.0, beam_gains=_gains(64, 0.25)),
+    "vlp32": LidarSpec("vlp32", _vlp32_elevations(), 1024, max_range=100.0, beam_gains=_gains(32, 0.1)),
 }
 
 
@@ -105,10 +113,11 @@ def simulate_returns(
 
     A return is lost with probability ``dropout + far_dropout · (r / max_range)² · (1 − signal)``,
     where ``signal = reflectivity · (0.35 + 0.65 · cos incidence)`` (dark, grazing, far surfaces drop
-    more); remission is ``signal · exp(−r / 250 m)`` plus noise, clipped to [0, 1].
+    more); remission is ``gain(beam) · signal · exp(−r / 250 m)`` plus noise, clipped to [0, 1].
 
     Args:
-        dirs: ``(R, 3) float64`` unit ray directions in the sensor frame.
+        dirs: ``(R, 3) float64`` unit ray directions in the sensor frame, beam-major
+            (:meth:`LidarSpec.directions` order; the beam of ray i is ``i // azimuth_steps``).
         hit_range: ``(R,) float64`` distance to the first surface along each ray (inf: no hit), metres.
         cos_incidence: ``(R,) float64`` |cos| of the angle between ray and surface normal.
         reflectivity: ``(R,) float64`` material reflectivity in [0, 1].
@@ -122,13 +131,15 @@ def simulate_returns(
     params = np.array(
         [spec.range_noise, spec.dropout, spec.far_dropout, spec.min_range, spec.max_range], dtype=np.float64
     )
-    return _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, rng)
+    gains = np.asarray(spec.beam_gains or (1.0,) * spec.beams, dtype=np.float64)
+    return _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, gains, rng)
 
 
 @nb.njit(cache=True)
-def _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, rng):
+def _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, gains, rng):
     noise, dropout, far_dropout, min_range, max_range = params[0], params[1], params[2], params[3], params[4]
     n = hit_range.shape[0]
+    per_beam = n // gains.shape[0]
     scan = np.empty((n, 4), np.float32)
     label = np.empty(n, np.uint32)
     k = 0
@@ -144,7 +155,8 @@ def _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, p
         scan[k, 0] = dirs[i, 0] * m
         scan[k, 1] = dirs[i, 1] * m
         scan[k, 2] = dirs[i, 2] * m
-        scan[k, 3] = min(max(signal * math.exp(-r / 250.0) + rng.normal(0.0, 0.02), 0.0), 1.0)
+        gain = gains[i // per_beam]
+        scan[k, 3] = min(max(gain * signal * math.exp(-r / 250.0) + rng.normal(0.0, 0.02), 0.0), 1.0)
         label[k] = np.uint32(semantic[i]) | (np.uint32(instance[i]) << np.uint32(16))
         k += 1
     return scan[:k].copy(), label[:k].copy()

@@ -95,6 +95,14 @@ def test_every_thing_class_and_instance_ids(hdl64_log):
     assert np.isin([10, 11, 15, 30, 40, 48, 50, 60, 70, 71, 72, 80, 81], sem).all()
 
 
+def test_remission_follows_material(hdl64_log):
+    _, scans, labels = hdl64_log
+    rem, sem = np.concatenate(scans)[:, 3], np.concatenate(labels) & 0xFFFF
+    median = {c: float(np.median(rem[sem == c])) for c in (40, 60, 81)}
+    assert median[60] > 2 * median[40], "lane markings are brighter than asphalt"
+    assert median[81] > 0.5 and median[81] > median[60], "retro-reflective signs are brightest"
+
+
 def test_parked_objects_stay_put_and_moving_ones_move(hdl64_log):
     reader, scans, labels = hdl64_log
     poses = reader.poses("00")

@@ -58,12 +58,21 @@ def sequence_seed(seed: int, index: int) -> np.random.SeedSequence:
 
 
 def plan_sequence(seed: int, index: int, frames: int, config: SynthConfig | None = None) -> SequencePlan:
-    """Build the world and the ego drive of sequence ``index`` (deterministic in ``seed, index``)."""
+    """Build the world and the ego drive of sequence ``index`` (deterministic in ``seed, index``).
+
+    Raises:
+        ConfigError: the world holds more things than 16-bit instance ids can name.
+    """
     config = config or SynthConfig()
     spec = get_sensor(config.sensor)
     rng = np.random.default_rng(sequence_seed(seed, index).spawn(1)[0])
     times = np.arange(frames, dtype=np.float64) * config.frame_period
     scene = build_scene(rng, float(times[-1]) if frames else 0.0, config)
+    if len(scene.things) > 0xFFFF:
+        raise ConfigError(
+            f"sequence {index:02d} would hold {len(scene.things)} things, more than 16-bit instance ids "
+            "allow; use shorter sequences or less traffic"
+        )
     return SequencePlan(scene, _ego_poses(scene, times, spec.height, config.jitter_deg, rng), times)
 
 

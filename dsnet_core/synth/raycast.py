@@ -32,6 +32,8 @@ from dsnet_core.synth.road import (
     TERRAIN,
 )
 
+VEGETATION = 70
+FOLIAGE_DEPTH = 0.3  # mean penetration of a ray into foliage (metres)
 _GROUND_REFL = {ROAD: 0.22, LANE_MARKING: 0.75, PARKING: 0.26, SIDEWALK: 0.33, 49: 0.28, TERRAIN: 0.42}
 GROUND_REFLECTIVITY = np.zeros(256, dtype=np.float64)
 for _k, _v in _GROUND_REFL.items():
@@ -181,6 +183,34 @@ def _intersect(kind, px, py, pz, dx, dy, dz, hx, hy, hz):
 
 
 @nb.njit(cache=True)
+def _exit(kind, px, py, pz, dx, dy, dz, hx, hy, hz):
+    """Exit distance of a local-frame ray from a box or ellipsoid it enters (cylinders: side exit)."""
+    if kind == 0:
+        tmax = math.inf
+        for p, d, h in ((px, dx, hx), (py, dy, hy), (pz, dz, hz)):
+            if abs(d) > 1e-12:
+                tmax = min(tmax, max((-h - p) / d, (h - p) / d))
+        return tmax
+    if kind == 1:
+        hy = hx
+        hz = math.inf
+        dz = 0.0
+    qx, qy, qz = px / hx, py / hy, pz / hz
+    ex, ey, ez = dx / hx, dy / hy, dz / hz
+    a = ex * ex + ey * ey + ez * ez
+    b = qx * ex + qy * ey + qz * ez
+    c = qx * qx + qy * qy + qz * qz - 1.0
+    return (-b + math.sqrt(max(b * b - a * c, 0.0))) / a
+
+
+@nb.njit(cache=True)
+def _hash01(i, j, salt):
+    """Deterministic pseudo-random number in (0, 1] from two integers and a salt."""
+    x = math.sin(i * 12.9898 + j * 78.233 + salt) * 43758.5453
+    return 1.0 - (x - math.floor(x))
+
+
+@nb.njit(cache=True)
 def bin_primitives(ox, oy, oz, kind, center, half, max_range, n_bins):
     """Cull and bin primitives around the origin.
 
@@ -247,8 +277,12 @@ def bin_primitives(ox, oy, oz, kind, center, half, max_range, n_bins):
 
 
 @nb.njit(cache=True)
-def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground, ground_refl, max_range):
+def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground, ground_refl, max_range, salt=0.0):
     """Cast sensor-frame rays ``dirs (R, 3)`` from ``origin (3,)`` rotated by ``rot (3, 3)``.
+
+    Vegetation is porous: a ray entering foliage returns from an exponentially distributed depth
+    (mean ``FOLIAGE_DEPTH``, at most the far side), so crowns and hedges give volumetric, noisy
+    points and let nearer-inside surfaces (trunks) show through. ``salt`` varies that draw per sweep.
 
     Returns:
         t ``(R,)`` hit distance (inf: none within ``max_range``), semantic ``(R,) int32`` raw id,
@@ -285,6 +319,9 @@ def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground, ground_refl, max_r
             lx, ly, lz = c * qx + s * qy, -s * qx + c * qy, oz - center[p, 2]
             ex, ey = c * dx + s * dy, -s * dx + c * dy
             t, cs = _intersect(kind[p], lx, ly, lz, ex, ey, dz, half[p, 0], half[p, 1], half[p, 2])
+            if t < best and semantic[p] == VEGETATION:
+                t_out = _exit(kind[p], lx, ly, lz, ex, ey, dz, half[p, 0], half[p, 1], half[p, 2])
+                t = min(t - FOLIAGE_DEPTH * math.log(_hash01(r, p, salt)), max(t, t_out))
             if t < best:
                 best = t
                 hit = p

@@ -33,8 +33,9 @@ class Renderer:
         meta = np.array([lo[0], lo[1], GRID_RES, lay.s0, lay.ds, lay.lane_width])
         self.ground = (grid_s, grid_d, meta, lay.edges, lay.classes, lay.lanes)
 
-    def cast(self, pose: np.ndarray, t: float) -> tuple[np.ndarray, ...]:
-        """Geometric hits of every ray from sensor pose ``pose`` ``(4, 4)`` (sensor → world) at time ``t``.
+    def cast(self, pose: np.ndarray, t: float, salt: float = 0.0) -> tuple[np.ndarray, ...]:
+        """Geometric hits of every ray from sensor pose ``pose`` ``(4, 4)`` (sensor → world) at time ``t``;
+        ``salt`` varies the foliage penetration draw.
 
         Returns:
             range ``(R,)`` (inf: no hit), raw semantic ``(R,) int32``, instance ``(R,) int32``,
@@ -56,6 +57,7 @@ class Renderer:
             self.ground,
             GROUND_REFLECTIVITY,
             max_range + 1.0,
+            salt,
         )
 
     def render(self, pose: np.ndarray, t: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -65,5 +67,5 @@ class Renderer:
             scan ``(N, 4) float32`` (x, y, z in the sensor frame, metres; remission) and label
             ``(N,) uint32`` (raw semantic | instance << 16).
         """
-        hit_range, sem, inst, cos, refl = self.cast(pose, t)
+        hit_range, sem, inst, cos, refl = self.cast(pose, t, float(rng.uniform(0.0, 1000.0)))
         return simulate_returns(self.spec, self.dirs, hit_range, cos, refl, sem, inst, rng)

@@ -24,33 +24,53 @@ SIDES = (1.0, -1.0)  # side 0 is the left (d > 0), side 1 the right
 SIDEWALK_BAND = 0.9  # outer band of the sidewalk where things stand (bikes, bins, people); no walking
 
 
+def _corners(rect: tuple[float, float, float, float, float]) -> np.ndarray:
+    s, d, hl, hw, yaw = rect
+    c, n = np.cos(yaw), np.sin(yaw)
+    return np.array([[s + c * hl * a - n * hw * b, d + n * hl * a + c * hw * b] for a, b in _SIGNS])
+
+
+_SIGNS = ((1, 1), (1, -1), (-1, -1), (-1, 1))
+
+
+def _disjoint(a: np.ndarray, b: np.ndarray) -> bool:
+    """Separating-axis test of two rectangles given as ``(4, 2)`` corners."""
+    for poly in (a, b):
+        for k in range(2):
+            edge = poly[k + 1] - poly[k]
+            axis = np.array([-edge[1], edge[0]])
+            pa, pb = a @ axis, b @ axis
+            if pa.max() <= pb.min() or pb.max() <= pa.min():
+                return True
+    return False
+
+
 @dataclass
 class Occupancy:
-    """Footprints already used on the ground, as circles in Frenet coordinates (s, d, radius)."""
+    """Footprints already used on the ground: rectangles in Frenet coordinates (s along, d across),
+    bucketed by 10 m of s. Things placed through it never overlap each other."""
 
-    circles: list[tuple[float, float, float]] = field(default_factory=list)
-
-    def free(self, s: float, d: float, r: float) -> bool:
-        return all((s - cs) ** 2 + (d - cd) ** 2 >= (r + cr) ** 2 for cs, cd, cr in self.circles)
+    buckets: dict[int, list[tuple[tuple[float, ...], np.ndarray]]] = field(default_factory=dict)
 
     def take(self, s: float, d: float, r: float) -> bool:
-        if not self.free(s, d, r):
-            return False
-        self.circles.append((s, d, r))
-        return True
+        """Take a round footprint of radius ``r`` (as its bounding square)."""
+        return self.take_box(s, d, 2 * r, 2 * r, 0.0, 0.0)
 
     def take_box(
-        self, s: float, d: float, length: float, width: float, yaw: float, margin: float = 0.15
+        self, s: float, d: float, length: float, width: float, yaw: float, margin: float = 0.1
     ) -> bool:
-        """Take a ``length`` × ``width`` footprint turned by ``yaw`` from the road direction, covered
-        by a row of circles ``margin`` wider than it."""
-        n = max(1, int(np.ceil(length / width)))
-        offsets = (np.arange(n) + 0.5) * (length / n) - length / 2
-        r = 0.5 * max(width, length / n) + margin
-        circles = [(s + o * np.cos(yaw), d + o * np.sin(yaw), r) for o in offsets]
-        if not all(self.free(*c) for c in circles):
-            return False
-        self.circles.extend(circles)
+        """Take a ``length`` × ``width`` footprint turned by ``yaw`` from the road direction, grown by
+        ``margin``; False (and nothing taken) if it meets a footprint already taken."""
+        rect = (s, d, length / 2 + margin, width / 2 + margin, yaw)
+        reach = float(np.hypot(rect[2], rect[3]))
+        corners = _corners(rect)
+        key = int(s // 10.0)
+        for k in range(key - 2, key + 3):
+            for other, other_corners in self.buckets.get(k, []):
+                far = (other[0] - s) ** 2 + (other[1] - d) ** 2 > (reach + np.hypot(other[2], other[3])) ** 2
+                if not far and not _disjoint(corners, other_corners):
+                    return False
+        self.buckets.setdefault(key, []).append((rect, corners))
         return True
 
 

@@ -147,7 +147,7 @@ def _two_wheeler(rng: np.random.Generator, motor: bool) -> tuple[list[Part], flo
 
 def bicycle(rng: np.random.Generator) -> Shape:
     parts, length = _two_wheeler(rng, motor=False)
-    return Shape(parts, length, 0.5, 1.05)
+    return Shape(parts, length, 0.62, 1.05)
 
 
 def motorcycle(rng: np.random.Generator) -> Shape:

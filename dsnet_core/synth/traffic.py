@@ -96,7 +96,7 @@ class Traffic:
     def park(self, cls: tuple[int, int], s: float, d: float, yaw_offset: float = 0.0, shape=None) -> bool:
         """Place a static thing at Frenet ``(s, d)``; False if the spot is taken."""
         shape = shape or SHAPES[cls](self.rng)
-        margin = 0.15 if shape.length > 2.5 else 0.05
+        margin = 0.15 if shape.length > 2.5 else 0.04
         if not self.occ.take_box(s, d, shape.length, shape.width, yaw_offset, margin):
             return False
         x, y, h = self.road.pose_at(s, d)
@@ -167,12 +167,12 @@ class Traffic:
                     self.park(cls, sc, d, 0.0 if sign < 0 else np.pi, shape)
                 s = sc + shape.length / 2 + rng.uniform(0.6, 2.5)
         for lot in self.street.lots:
-            if lot.kind != "paved":
+            if lot.kind != "paved" or rng.random() < 0.4:  # some paved lots are empty forecourts
                 continue
             sign = SIDES[lot.side]
             base = lay.edge(lot.side, SIDEWALK_END, (lot.s0 + lot.s1) / 2)
             for s in np.arange(lot.s0 + 1.5, lot.s1 - 1.5, 2.8):
-                if rng.random() < parked * 0.7:
+                if rng.random() < parked * 0.6:
                     self.park(
                         CAR, float(s), sign * (base + rng.uniform(4.0, 6.0)), np.pi / 2 + rng.normal(0, 0.05)
                     )
@@ -191,8 +191,8 @@ class Traffic:
                     for _ in range(int(rng.integers(2, 8))):
                         if s > b - 0.4:
                             break
-                        self.park(BICYCLE, s, d, np.pi / 2 + rng.normal(0, 0.08))
-                        s += rng.uniform(0.7, 0.9)
+                        self.park(BICYCLE, s, d, np.pi / 2 + rng.normal(0, 0.03))
+                        s += rng.uniform(0.75, 0.9)
                 else:  # people standing together
                     for k in range(int(rng.integers(2, 5))):
                         ang = 2 * np.pi * k / 4 + rng.normal(0, 0.2)

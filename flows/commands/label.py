@@ -22,9 +22,12 @@ def label(
     lock_wait: float = typer.Option(0.0, help="Seconds to wait for another run's lock before failing."),
 ) -> None:
     """Label a log into a run store, resuming whatever is already done there."""
+    import os
+
     from flows.server import prefect_api, quiet_prefect_env
 
     quiet_prefect_env()
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")  # keep the progress bars readable
     if on_error not in ("fail", "skip"):
         raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
     if workers and dask_address:

@@ -215,3 +215,18 @@ def _zombie(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] == "Z"
     except OSError:
         return True
+
+
+@pytest.mark.slow
+def test_local_dask_cluster(cli_env, tmp_path):
+    log = make_log(tmp_path / "log", ("00", "01"), n_frames=5)
+    root = tmp_path / "run"
+    res = subprocess.run(
+        cli("label", str(log), "--run", str(root), "--scans", "2", "--block-size", "2", "--workers", "2"),
+        cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    store = RunStore(root)
+    for seq in ("00", "01"):
+        assert store.read_manifest(seq, "align").status == "done"
+        assert store.arrays(seq, "align").done().all()

@@ -12,6 +12,7 @@ def label(
     scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
     stride: int = typer.Option(None, help="Step between volumes (default k-1, or 1 for k=1)."),
     from_stage: str = typer.Option(None, help="Recompute this stage and everything downstream."),
+    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
     force: bool = typer.Option(False, help="Recompute every stage."),
     on_error: str = typer.Option("fail", help="fail: stop on a bad frame; skip: quarantine it and go on."),
     workers: int = typer.Option(None, help="Run blocks on a local Dask cluster of N worker processes."),
@@ -44,7 +45,7 @@ def label(
 
             flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
             with _progress_bars():
-                summary = flow(data, run, seqs, stages, options, from_stage, force)
+                summary = flow(data, run, seqs, stages, options, from_stage, force, until=until)
     except (DsnetError, StoreError, ValueError) as exc:
         typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
         raise typer.Exit(code=2) from None

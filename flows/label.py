@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import logging
 import socket
+import subprocess
 import time
 import uuid
+from pathlib import Path
 from typing import Any
 
 from prefect import flow, get_run_logger, task
@@ -30,10 +32,30 @@ from storage.errors import StoreError
 from storage.locks import LockSet, Owner
 from storage.run import RunStore
 from tasks.base import RunOptions
-from tasks.registry import downstream_of, stage_order
+from tasks.registry import STAGES, downstream_of, stage_order
 from tasks.runner import BlockJob, finalize_stage, mark_failed, prepare_stage, run_block
 
-CODE_VERSION = "dsnet-pipeline 0.1.0"
+
+def code_version() -> str:
+    """Package version and, in a git checkout, the commit (recorded in the run config; fingerprints
+    use each stage's own ``version`` so an unrelated commit does not invalidate finished stages)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        out = f"dsnet-pipeline {version('dsnet-pipeline')}"
+    except PackageNotFoundError:
+        out = "dsnet-pipeline (not installed)"
+    repo = Path(__file__).resolve().parents[1]
+    if (repo / ".git").exists():
+        try:
+            res = subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], cwd=repo, capture_output=True, text=True, timeout=5
+            )
+            if res.returncode == 0:
+                out += f" git {res.stdout.strip()}"
+        except (OSError, subprocess.TimeoutExpired):
+            pass
+    return out
 
 
 def _transient(task, task_run, state) -> bool:
@@ -93,7 +115,8 @@ def label(
         sequences = SemanticKittiReader(data).sequences()
     run_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:6]}"
     run = {
-        "code_version": CODE_VERSION,
+        "code_version": code_version(),
+        "stage_versions": {name: STAGES[name].version for name in order},
         "data": str(data),
         "sequences": list(sequences),
         "stages": {name: dict((stages or {}).get(name, {})) for name in order},

@@ -138,5 +138,12 @@ class StageArrays:
         """bool ``(items,)``."""
         return self._arrays["done"][:].astype(bool)
 
+    def done_items(self, items) -> np.ndarray:
+        """bool flags of the given items (reads only their chunks)."""
+        idx = np.asarray(list(items), dtype=np.int64)
+        if idx.size == 0:
+            return np.zeros(0, bool)
+        return self._arrays["done"].get_orthogonal_selection((idx,)).astype(bool)
+
     def n_points(self) -> np.ndarray:
         return self._arrays["n_points"][:]

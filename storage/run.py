@@ -7,6 +7,7 @@ Layout::
     ROOT/runs/<run_id>.json                        every run's config and summary
     ROOT/sequences/<seq>/<stage>/manifest.json     written last, atomically
     ROOT/sequences/<seq>/<stage>/blocks/NNNNN.json one fragment per finished block
+    ROOT/sequences/<seq>/<stage>/items/NNNNNN.json rows + counts of one item (array stages), before done
     ROOT/sequences/<seq>/<stage>/arrays.zarr/      padded per-item arrays (zarr v3)
     ROOT/sequences/<seq>/<stage>/lock.json         owner + heartbeat
     ROOT/tables/<table>/sequence=<seq>/part-0.parquet
@@ -96,6 +97,16 @@ class RunStore:
     def completed_blocks(self, sequence: str, stage: str, fingerprint: str) -> set[int]:
         return set(self.fragments(sequence, stage, fingerprint))
 
+    def write_item_record(self, sequence: str, stage: str, index: int, record: dict[str, Any]) -> None:
+        """One item's table rows and counts, written before its ``done`` flag (item-level resume)."""
+        rel = posixpath.join(self.stage_rel(sequence, stage), "items", f"{index:06d}.json")
+        self.root.write_json(rel, record)
+
+    def read_item_record(self, sequence: str, stage: str, index: int) -> dict[str, Any] | None:
+        return self.root.read_json(
+            posixpath.join(self.stage_rel(sequence, stage), "items", f"{index:06d}.json")
+        )
+
     def contract(self, stage: str) -> StageContract:
         return CONTRACTS[stage]
 
@@ -123,4 +134,5 @@ class RunStore:
         for spec in CONTRACTS[stage].tables:
             remove_partition(self.root, spec, {"sequence": sequence})
         self.root.remove(posixpath.join(base, "blocks"), recursive=True)
+        self.root.remove(posixpath.join(base, "items"), recursive=True)
         self.root.remove(posixpath.join(base, "arrays.zarr"), recursive=True)

@@ -2,6 +2,11 @@
 
 Plain functions (no Prefect): the flows wrap :func:`run_block` in a task; tests and benchmarks call
 them directly. Callers hold the (sequence, stage) locks of the stage and its downstream stages.
+
+Resume: a block is complete when its fragment (with the stage's fingerprint) exists; a resumed
+stage runs only incomplete blocks, and inside those, items of an array stage whose ``done`` flag
+is set (with their row record) are not recomputed. A kill loses at most the item in flight of each
+running block (the whole block in flight for a table-only stage such as ingest).
 """
 
 from __future__ import annotations
@@ -143,13 +148,29 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
     arrays = store.arrays(job.sequence, job.stage, read_only=False) if spec.contract.arrays else None
     rows: dict[str, list[dict]] = {}
     counts: dict[str, int] = {}
-    for res in spec.run_block(ctx, list(job.items)):
-        if arrays is not None:
-            arrays.write_item(res.index, res.arrays, res.n_points)
-        for table, rs in res.rows.items():
+
+    def add(item_rows: dict[str, list[dict]], item_counts: dict[str, int]) -> None:
+        for table, rs in item_rows.items():
             rows.setdefault(table, []).extend(rs)
-        for key, n in res.counts.items():
+        for key, n in item_counts.items():
             counts[key] = counts.get(key, 0) + n
+
+    todo = list(job.items)
+    if arrays is not None:  # items of an interrupted block whose done flag is set are not recomputed
+        kept = []
+        for item, done in zip(job.items, arrays.done_items(job.items), strict=True):
+            record = store.read_item_record(job.sequence, job.stage, item) if done else None
+            if record is not None and record.get("fingerprint") == job.fingerprint:
+                add(record["rows"], record["counts"])
+            else:
+                kept.append(item)
+        todo = kept
+    for res in spec.run_block(ctx, todo):
+        if arrays is not None:
+            record = {"fingerprint": job.fingerprint, "rows": res.rows, "counts": res.counts}
+            store.write_item_record(job.sequence, job.stage, res.index, record)  # before the done flag
+            arrays.write_item(res.index, res.arrays, res.n_points)
+        add(res.rows, res.counts)
     _check_lock(store, job)
     frag = BlockFragment(
         fingerprint=job.fingerprint,
@@ -165,6 +186,7 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
         "stage": job.stage,
         "block": job.block,
         "seconds": frag.seconds,
+        "items_resumed": len(job.items) - len(todo),
         **counts,
     }
 

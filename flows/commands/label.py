@@ -12,6 +12,7 @@ def label(
     scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
     stride: int = typer.Option(None, help="Step between volumes (default k-1, or 1 for k=1)."),
     from_stage: str = typer.Option(None, help="Recompute this stage and everything downstream."),
+    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
     force: bool = typer.Option(False, help="Recompute every stage."),
     on_error: str = typer.Option("fail", help="fail: stop on a bad frame; skip: quarantine it and go on."),
     workers: int = typer.Option(None, help="Run blocks on a local Dask cluster of N worker processes."),
@@ -23,9 +24,12 @@ def label(
     until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
 ) -> None:
     """Label a log into a run store, resuming whatever is already done there."""
+    import os
+
     from flows.server import prefect_api, quiet_prefect_env
 
     quiet_prefect_env()
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")  # keep the progress bars readable
     if on_error not in ("fail", "skip"):
         raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
     if workers and dask_address:

@@ -154,7 +154,7 @@ def test_second_run_names_the_holder(big_log, cli_env, tmp_path):
         rec = {"host": os.uname().nodename, "pid": holder.pid, "run_id": "other-run", "acquired": time.time()}
         lock.write_text(json.dumps({**rec, "heartbeat": time.time()}))
         res = subprocess.run(
-            cli("label", str(big_log), "--run", str(root)),
+            cli("label", str(big_log), "--run", str(root), "--until", "align"),
             cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=300,
         )  # fmt: skip
     finally:
@@ -190,7 +190,7 @@ def test_killed_cli_leaves_no_prefect_server(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
     env.update(PYTHONPATH=str(REPO), PREFECT_HOME=str(tmp_path / "prefect-home"))
     proc = subprocess.Popen(
-        cli("label", str(log), "--run", str(tmp_path / "run")), cwd=REPO, env=env,
+        cli("label", str(log), "--run", str(tmp_path / "run"), "--until", "align"), cwd=REPO, env=env,
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     servers: list[int] = []
@@ -215,3 +215,18 @@ def _zombie(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] == "Z"
     except OSError:
         return True
+
+
+@pytest.mark.slow
+def test_local_dask_cluster(cli_env, tmp_path):
+    log = make_log(tmp_path / "log", ("00", "01"), n_frames=5)
+    root = tmp_path / "run"
+    res = subprocess.run(
+        cli("label", str(log), "--run", str(root), "--scans", "2", "--workers", "2", "--until", "align"),
+        cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    store = RunStore(root)
+    for seq in ("00", "01"):
+        assert store.read_manifest(seq, "align").status == "done"
+        assert store.arrays(seq, "align").done().all()

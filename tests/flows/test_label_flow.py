@@ -101,3 +101,19 @@ def test_s3_store_resumes(prefect_api_url, s3_endpoint, two_seq_log):
     assert (
         read_table(store.root, VOLUMES)["sequence"].to_pylist() == ["00"] * 5
     )  # the temp object is not data
+
+
+def test_retries_only_transient_storage_errors():
+    from prefect.states import Failed
+
+    from dsnet_core.errors import ScanFormatError
+    from flows.label import _transient
+    from storage.errors import LockLostError
+
+    def retried(exc):
+        return _transient(None, None, Failed(data=exc))
+
+    assert retried(OSError("connection reset")) and retried(TimeoutError()) and retried(ConnectionError())
+    assert not retried(ScanFormatError("a.bin", "truncated"))
+    assert not retried(LockLostError("lock.json", "taken over"))
+    assert not retried(FileNotFoundError("gone")) and not retried(ValueError("bug"))

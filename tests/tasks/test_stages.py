@@ -9,7 +9,7 @@ from dsnet_core.errors import ScanFormatError
 from dsnet_core.io import kitti
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from storage.run import RunStore
-from tasks.runner import prepare_stage, run_stage_plain, stage_state
+from tasks.runner import finalize_stage, prepare_stage, run_block, run_stage_plain, stage_state
 from tests.logs import NOISE, make_log, pose
 
 
@@ -98,10 +98,15 @@ def test_resume_reprocess_and_force(log, tmp_path):
     m.status = "running"
     store.write_manifest(m)
     assert stage_state(store, "00", "align", run)[0] == "partial"
+    arrays = store.arrays("00", "align", read_only=False)
+    arrays.group["done"][3] = 0  # killed inside block 1 (items 2, 3): item 2 finished, item 3 did not
     d = prepare_stage(store, "00", "align", run, "r1")
-    assert d.action == "resume" and [j.block for j in d.jobs] == [1]
-    m2 = run_stage_plain(store, "00", "align", run, "r1")
-    assert m2.fingerprint == align.fingerprint and m2.status == "done"
+    assert d.action == "resume" and [j.block for j in d.jobs] == [1] and d.jobs[0].items == (2, 3)
+    out = run_block(d.jobs[0], store)
+    assert out["items_resumed"] == 1 and out["volumes"] == 2  # item 2 came from its done flag and record
+    m2 = finalize_stage(store, "00", "align", d.fingerprint)
+    assert m2.fingerprint == align.fingerprint and m2.status == "done" and m2.counts == align.counts
+    assert store.read_table("00", "align", "volumes").num_rows == align.n_items
     for i, r in enumerate(ref):
         got = store.arrays("00", "align").read_item(i)
         assert all(np.array_equal(got[k], r[k]) for k in r)

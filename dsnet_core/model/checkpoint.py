@@ -79,7 +79,9 @@ def class_map_of(label_map: LabelMap) -> dict:
 
 
 def code_version() -> str:
-    """The git commit of this code when available, else the package version."""
+    """``$DSNET_CODE_VERSION``, else the git commit of this code, else the package version."""
+    if os.environ.get("DSNET_CODE_VERSION"):
+        return os.environ["DSNET_CODE_VERSION"]
     here = Path(__file__).resolve().parent
     try:
         sha = subprocess.run(

@@ -110,3 +110,24 @@ def offset_loss(
         return offsets.sum() * 0.0
     diff = offsets[valid] - (centres[valid] - xyz[valid])
     return diff.abs().sum(dim=1).mean()
+
+
+def voxel_labels(
+    point_to_voxel: torch.Tensor, labels: torch.Tensor, n_voxels: int, num_classes: int, ignore: int = 0
+):
+    """Majority label per voxel over its labelled points (``ignore`` only where none is labelled).
+
+    The semantic loss is taken per voxel, as in Cylinder3D (3–4× fewer rows than points).
+
+    Args:
+        point_to_voxel: int64 ``(N,)``; labels: int64 ``(N,)``.
+
+    Returns:
+        int64 ``(M,)``.
+    """
+    votes = torch.zeros(n_voxels * num_classes, dtype=torch.int64, device=labels.device)
+    votes.index_add_(0, point_to_voxel * num_classes + labels, torch.ones_like(labels))
+    votes = votes.view(n_voxels, num_classes)
+    votes[:, ignore] = 0
+    best = votes.argmax(dim=1)
+    return torch.where(votes.gather(1, best[:, None])[:, 0] > 0, best, torch.full_like(best, ignore))

@@ -28,7 +28,13 @@ from dsnet_core.model.checkpoint import (
     read_card,
     save_checkpoint,
 )
-from dsnet_core.model.losses import class_weights, instance_centres, offset_loss, semantic_loss
+from dsnet_core.model.losses import (
+    class_weights,
+    instance_centres,
+    offset_loss,
+    semantic_loss,
+    voxel_labels,
+)
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
@@ -210,6 +216,15 @@ class Trainer:
             losses.append(float(loss.detach()))
             if on_step is not None:
                 on_step(stage, epoch + 1, step + 1, steps, losses[-1])
+            if (step + 1) % 25 == 0:
+                log.info(
+                    "%s epoch %d step %d/%d: mean loss %.4f",
+                    stage,
+                    epoch + 1,
+                    step + 1,
+                    steps,
+                    np.mean(losses[-25:]),
+                )
         return float(np.mean(losses))
 
     def _loss(self, stage: str, samples: list[Sample]) -> torch.Tensor:
@@ -217,7 +232,9 @@ class Trainer:
         out = self.model(clouds, instance=stage == "offset")
         if stage == "semantic":
             sem = torch.from_numpy(np.concatenate([s.sem for s in samples])).to(self.device)
-            return semantic_loss(out.logits, sem, self.weights)
+            n_vox, n_cls = out.voxel_logits.shape
+            vsem = voxel_labels(out.point_to_voxel, sem, n_vox, n_cls)
+            return semantic_loss(out.voxel_logits, vsem, self.weights)
         xyz = torch.cat([c[:, :3] for c in clouds])
         keys = np.concatenate([s.inst + (b << 40) * (s.inst > 0) for b, s in enumerate(samples)])
         valid = torch.from_numpy(np.concatenate([s.thing for s in samples])).to(self.device)

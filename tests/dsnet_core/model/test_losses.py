@@ -65,3 +65,11 @@ def test_offset_loss_eq1():
     off = perfect + torch.tensor([[0.5, -0.5, 0], [0, 0, 1], [100, 100, 100]])
     assert offset_loss(off, xyz, centres, valid).item() == pytest.approx((1.0 + 1.0) / 2)
     assert offset_loss(off, xyz, centres, torch.zeros(3, dtype=torch.bool)).item() == 0.0
+
+
+def test_voxel_labels_majority_ignoring_unlabelled():
+    from dsnet_core.model.losses import voxel_labels
+
+    p2v = torch.tensor([0, 0, 0, 1, 1, 2, 2, 2])
+    lab = torch.tensor([3, 3, 1, 0, 2, 0, 0, 0])
+    assert voxel_labels(p2v, lab, 4, 5).tolist() == [3, 2, 0, 0]

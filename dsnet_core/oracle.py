@@ -14,7 +14,8 @@ features computable without a network.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from dsnet_core.radius import radius_sums
 
 NOISE_DEFAULTS = {"radial": (0.08, 0.008), "tangential": (0.04, 0.003), "bias": (0.05, 0.002)}
 
@@ -93,7 +94,7 @@ def oracle_features(xyz: np.ndarray, centres: np.ndarray, semantic: np.ndarray) 
 
     Columns: one-hot of the thing class 1..8 (8); range/50, height, offset length (3);
     log(1 + count) of regressed centres within 0.2, 0.65, 1.0, 1.7, 3.2 m of the point's centre
-    (5); mean distance of those neighbours at 1.7 and 3.2 m (2); log(1 + count) of raw points
+    (5); RMS distance of those neighbours at 1.7 and 3.2 m (2); log(1 + count) of raw points
     within 0.5 and 1.5 m (2); the class one-hot times range/50 (8); the counts at 0.2/1.7/3.2 m
     times range/50 (3); a constant 1 (1).
 
@@ -109,20 +110,18 @@ def oracle_features(xyz: np.ndarray, centres: np.ndarray, semantic: np.ndarray) 
     onehot[np.arange(m), np.clip(semantic, 1, 8) - 1] = 1.0
     rho = np.linalg.norm(xyz[:, :2], axis=1, keepdims=True) / 50.0
     offset = np.linalg.norm(centres - xyz, axis=1, keepdims=True)
-    ctree = cKDTree(centres)
-    counts = np.stack(
-        [
-            np.log1p(ctree.query_ball_point(centres, r, return_length=True))
-            for r in (0.2, 0.65, 1.0, 1.7, 3.2)
-        ],
-        axis=1,
-    )
-    spreads = []
-    for r in (1.7, 3.2):
-        nb = ctree.query_ball_point(centres, r)
-        spreads.append([np.linalg.norm(centres[i] - centres[j], axis=1).mean() for i, j in enumerate(nb)])
-    ptree = cKDTree(xyz)
-    pcounts = np.stack([np.log1p(ptree.query_ball_point(xyz, r, return_length=True)) for r in (0.5, 1.5)], 1)
+    c64 = centres.astype(np.float64)
+    radii = np.array([0.2, 0.65, 1.0, 1.7, 3.2])
+    vals = np.concatenate([c64, (c64 * c64).sum(axis=1, keepdims=True), np.ones((m, 1))], axis=1)
+    sums = radius_sums(c64, c64, radii, np.broadcast_to(vals, (5, m, 5)))  # (5, M, 5)
+    n = sums[..., 4]
+    counts = np.log1p(n).T
+    # RMS distance to the neighbours: mean |c_b|² − 2 c_a·mean c_b + |c_a|²
+    msq = sums[..., 3] / n - 2 * np.einsum("jmd,md->jm", sums[..., :3] / n[..., None], c64) + vals[:, 3]
+    spreads = np.sqrt(np.maximum(msq[[3, 4]], 0.0))
+    p64 = xyz.astype(np.float64)
+    pn = radius_sums(p64, p64, np.array([0.5, 1.5]), np.ones((2, m, 1)))[..., 0]
+    pcounts = np.log1p(pn).T
     feats = np.concatenate(
         [
             onehot,
@@ -130,7 +129,7 @@ def oracle_features(xyz: np.ndarray, centres: np.ndarray, semantic: np.ndarray) 
             xyz[:, 2:3] / 2.0,
             offset,
             counts,
-            np.asarray(spreads).T,
+            spreads.T,
             pcounts,
             onehot * rho,
             counts[:, [0, 3, 4]] * rho,

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from dsnet_core.oracle4d import CentreNoise, box_centres, noisy, radius_components, windows
+from dsnet_core.oracle4d import CentreNoise, box_centres, grid_components, noisy, windows
 
 
 def test_box_centres_are_tight_box_centres_not_centroids():
@@ -21,15 +21,18 @@ def test_noise_is_elongated_along_the_ray_and_grows_with_range():
     assert far[:, 1].std() > 1.5 * d[:, 1].std()
 
 
-def test_radius_components():
+def test_grid_components():
     rng = np.random.default_rng(1)
     a = rng.normal(0, 0.05, (50, 3))
     b = rng.normal(0, 0.05, (30, 3)) + np.array([3.0, 0, 0])
     outlier = np.array([[1.2, 0, 0]])
-    ids = radius_components(np.concatenate([a, b, outlier]), radius=0.3, min_size=5)
+    ids = grid_components(np.concatenate([a, b, outlier]), cell=0.3, min_size=5)
     assert set(ids[:50].tolist()) == {1} and set(ids[50:80].tolist()) == {2}
     assert ids[80] == 1  # the lone outlier joins the nearest large component
-    assert radius_components(np.zeros((0, 3))).shape == (0,)
+    assert grid_components(np.zeros((0, 3))).shape == (0,)
+    # adjacency: same or 26-neighbour cells; two cells apart is not connected
+    ids = grid_components(np.array([[0.05, 0.05, 0.05], [0.35, 0.35, 0.35], [0.95, 0.05, 0.05]]), 0.3, 1)
+    assert ids.tolist() == [1, 1, 2]
 
 
 def test_windows():

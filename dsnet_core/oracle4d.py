@@ -1,167 +1,121 @@
 """Oracle 4D labelling for tests and benchmarks: ground-truth semantics and noisy ground-truth
-centres instead of the network, then the real clustering → stitching (or tracking) path.
+centres stand in for the network; everything after it is the real path — ``align`` volumes,
+a clusterer, fusion, then stitching (4D) or the tracking baseline (k = 1).
 
-This isolates what the 4D machinery contributes: with perfect semantics and centres that only
-carry regression noise, the stitched ids should give LSTQ close to 1, and the temporally
-unified volumes can be compared with single-frame clustering + the tracking baseline on equal
-terms.
+With perfect semantics and centres that only carry regression noise, the stitched ids should
+give LSTQ close to 1; and 4D volumes can be compared with single-scan clustering + tracking on
+equal terms (same noise model, same clusterer).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
+from dsnet_core.align import build_volume, plan_windows
+from dsnet_core.clustering import BFSConfig, Clusterer, get_clusterer
+from dsnet_core.fusion import fuse
 from dsnet_core.labels import LabelMap
+from dsnet_core.oracle import box_centres, noisy_centres
 from dsnet_core.stitching import Stitcher, VolumeLabels
 from dsnet_core.tracking import Tracker
 
-Clusterer = Callable[[np.ndarray], np.ndarray]
+
+def _objects(semantic: np.ndarray, instance: np.ndarray, thing: np.ndarray) -> np.ndarray:
+    """Compact object keys ``(N,) int64`` (> 0 on thing points with an id), class-distinct."""
+    key = semantic.astype(np.int64) * (1 << 32) + instance.astype(np.int64)
+    key = np.where(thing & (instance > 0), key, 0)
+    _, inv = np.unique(key, return_inverse=True)
+    return np.where(key > 0, inv + (0 if (key == 0).any() else 1), 0)
 
 
-@dataclass(frozen=True)
-class CentreNoise:
-    """Regression noise of predicted centres, metres: Gaussian, elongated along the sensor ray
-    and growing with range (σ = base + per_metre · range; along the ray × ``ray_factor``)."""
-
-    base: float = 0.03
-    per_metre: float = 0.004
-    ray_factor: float = 2.5
-
-
-def box_centres(xyz: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Per point, the centre of its instance's axis-aligned tight box (the DS-Net target).
-
-    Args:
-        xyz: ``(N, 3)`` points, metres. ids: ``(N,) int`` instance keys (any integers).
-
-    Returns:
-        ``(N, 3) float64``.
-    """
-    uniq, inv = np.unique(ids, return_inverse=True)
-    lo = np.full((uniq.size, 3), np.inf)
-    hi = np.full((uniq.size, 3), -np.inf)
-    np.minimum.at(lo, inv, xyz)
-    np.maximum.at(hi, inv, xyz)
-    return ((lo + hi) / 2)[inv]
+def _panoptic(
+    xyz: np.ndarray,
+    semantic: np.ndarray,
+    instance: np.ndarray,
+    label_map: LabelMap,
+    clusterer: Clusterer,
+    seed: int,
+    noise_scale: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Oracle instance stage of one scan/volume (sensor at the origin): noisy gt centres →
+    cluster → fuse. Returns (semantic, instance) ``(N,) int64``."""
+    thing = label_map.is_thing()[semantic]
+    obj = _objects(semantic, instance, thing)
+    pts = xyz[thing].astype(np.float32)
+    centres = noisy_centres(pts, box_centres(pts, obj[thing]), obj[thing], seed, scale=noise_scale)
+    ids = np.zeros(semantic.size, np.int64)
+    ids[thing] = clusterer.cluster(pts, centres, None)
+    fused = fuse(xyz.astype(np.float32), semantic, ids, label_map.things)
+    return fused.semantic, fused.instance
 
 
-def noisy(centres: np.ndarray, xyz: np.ndarray, rng: np.random.Generator, noise: CentreNoise) -> np.ndarray:
-    """``centres`` ``(N, 3)`` plus noise shaped by each point's ray from the sensor at the origin."""
-    r = np.linalg.norm(xyz, axis=1, keepdims=True)
-    ray = xyz / np.maximum(r, 1e-6)
-    sigma = noise.base + noise.per_metre * r
-    iso = rng.normal(size=xyz.shape) * sigma
-    along = (iso * ray).sum(1, keepdims=True)
-    return centres + iso + along * (noise.ray_factor - 1.0) * ray
-
-
-def radius_components(centres: np.ndarray, radius: float = 0.3, min_size: int = 5) -> np.ndarray:
-    """Connected components of centres closer than ``radius``; ids from 1, by first point.
-
-    Points of components smaller than ``min_size`` join the nearest large component (by
-    centre), so regression outliers do not become tiny instances.
-
-    Returns:
-        ``(N,) int64`` ids ≥ 1 (all 0 for no points).
-    """
-    n = centres.shape[0]
-    if n == 0:
-        return np.zeros(0, np.int64)
-    pairs = cKDTree(centres).query_pairs(radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, comp = connected_components(graph, directed=False)
-    sizes = np.bincount(comp)
-    big = sizes[comp] >= min_size
-    if big.any() and not big.all():
-        _, nearest = cKDTree(centres[big]).query(centres[~big])
-        comp[~big] = comp[big][nearest]
-    uniq, first = np.unique(comp, return_index=True)
-    rank = np.argsort(np.argsort(first))  # renumber components by their first point
-    return rank[np.searchsorted(uniq, comp)].astype(np.int64) + 1
-
-
-def _to_ref(xyz: np.ndarray, pose: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    m = np.linalg.solve(ref, pose)
-    return xyz @ m[:3, :3].T + m[:3, 3]
-
-
-def windows(n_frames: int, k: int, stride: int) -> list[list[int]]:
-    """Windows of ``k`` frames with step ``stride``; the last one ends at the last frame."""
-    if n_frames <= k:
-        return [list(range(n_frames))]
-    starts = list(range(0, n_frames - k + 1, stride))
-    if starts[-1] + k < n_frames:
-        starts.append(n_frames - k)
-    return [list(range(s, s + k)) for s in starts]
+def _train(labels: np.ndarray, label_map: LabelMap) -> tuple[np.ndarray, np.ndarray]:
+    labels = np.asarray(labels, dtype=np.uint32)
+    return label_map.to_train(labels & 0xFFFF).astype(np.int64), (labels >> 16).astype(np.int64)
 
 
 def oracle_4d(
     scans: Sequence[np.ndarray],
-    semantic: Sequence[np.ndarray],
-    instance: Sequence[np.ndarray],
+    labels: Sequence[np.ndarray],
     poses: np.ndarray,
     label_map: LabelMap,
     k: int,
-    rng: np.random.Generator,
     stride: int | None = None,
-    noise: CentreNoise = CentreNoise(),
-    cluster: Clusterer = radius_components,
+    clusterer: Clusterer | None = None,
+    seed: int = 0,
+    noise_scale: float = 1.0,
 ) -> list[np.ndarray]:
-    """Label a sequence with k-scan volumes: aligned scans → noisy volume-wide centres → cluster
-    → stitch. Returns the per-frame ``(N_f,) uint32`` labels.
+    """Label a sequence with k-scan volumes: align → noisy volume-wide centres → cluster →
+    fuse → stitch.
 
     Args:
-        scans: per frame ``(N_f, 3+)`` sensor-frame points. semantic: ``(N_f,)`` train ids.
-        instance: ``(N_f,)`` ground-truth instance ids. poses: ``(F, 4, 4)`` LiDAR-frame poses.
-        k: scans per volume; stride: step between volumes (default ``k - 1``: one shared frame).
+        scans: per frame float32 ``(N_f, 4)`` sensor-frame points.
+        labels: per frame uint32 ``(N_f,)`` ground truth (raw semantic | instance << 16).
+        poses: ``(F, 4, 4)`` LiDAR-frame poses.
+        k: scans per volume; stride: step between volumes (default ``k - 1``, one shared frame;
+            k = 1 gives independent frames).
+        clusterer: default BFS (radius 0.3 m) on the regressed centres.
+        seed: noise seed; noise_scale: multiplies :data:`dsnet_core.oracle.NOISE_DEFAULTS`.
+
+    Returns:
+        per frame uint32 ``(N_f,)`` labels with sequence-wide ids.
     """
-    thing_lut = label_map.is_thing()
+    clusterer = clusterer or get_clusterer(BFSConfig())
     stitcher = Stitcher(label_map)
     out: dict[int, np.ndarray] = {}
-    for w in windows(len(scans), k, stride or max(k - 1, 1)):
-        ref = poses[w[-1]]
-        xyz = np.concatenate([_to_ref(np.asarray(scans[f])[:, :3], poses[f], ref) for f in w])
-        sem = np.concatenate([semantic[f] for f in w]).astype(np.int64)
-        key = sem * (1 << 32) + np.concatenate([instance[f] for f in w]).astype(np.int64)
-        thing = thing_lut[sem]
-        raw = np.zeros(sem.size, np.int64)
-        centres = noisy(box_centres(xyz[thing], key[thing]), xyz[thing], rng, noise)
-        raw[thing] = cluster(centres)
-        frame = np.concatenate([np.full(len(scans[f]), f) for f in w])
-        index = np.concatenate([np.arange(len(scans[f])) for f in w])
-        vol = VolumeLabels(np.asarray(w), frame, index, sem, raw, thing=thing)
-        for ff in stitcher.add_volume(vol):
-            out[ff.frame] = ff.label
+    for v, window in enumerate(plan_windows(len(scans), k, stride or max(k - 1, 1))):
+        frames = list(window)
+        vol = build_volume([scans[f] for f in frames], [poses[f] for f in frames], frames)
+        sem_inst = [_train(labels[f], label_map) for f in frames]
+        sem = np.concatenate([s for s, _ in sem_inst])
+        inst = np.concatenate([i for _, i in sem_inst])
+        fsem, finst = _panoptic(vol.points[:, :3], sem, inst, label_map, clusterer, seed + v, noise_scale)
+        stitched = stitcher.add_volume(
+            VolumeLabels(np.asarray(frames), vol.source_frame, vol.source_index, fsem, finst)
+        )
+        out.update((ff.frame, ff.label) for ff in stitched)
     return [out[f] for f in range(len(scans))]
 
 
 def oracle_tracking(
     scans: Sequence[np.ndarray],
-    semantic: Sequence[np.ndarray],
-    instance: Sequence[np.ndarray],
+    labels: Sequence[np.ndarray],
     poses: np.ndarray,
     label_map: LabelMap,
-    rng: np.random.Generator,
-    noise: CentreNoise = CentreNoise(),
-    cluster: Clusterer = radius_components,
+    clusterer: Clusterer | None = None,
+    seed: int = 0,
+    noise_scale: float = 1.0,
     **tracker_kwargs,
 ) -> list[np.ndarray]:
-    """The baseline: single-scan noisy centres → cluster → :class:`Tracker`; per-frame labels."""
-    thing_lut = label_map.is_thing()
+    """The baseline: per scan noisy centres → cluster → fuse → :class:`Tracker` (ego-motion
+    compensated, constant velocity). Arguments as :func:`oracle_4d`."""
+    clusterer = clusterer or get_clusterer(BFSConfig())
     tracker = Tracker(label_map, **tracker_kwargs)
     out = []
     for f, scan in enumerate(scans):
-        xyz = np.asarray(scan)[:, :3].astype(np.float64)
-        sem = np.asarray(semantic[f], dtype=np.int64)
-        key = sem * (1 << 32) + np.asarray(instance[f], dtype=np.int64)
-        thing = thing_lut[sem]
-        raw = np.zeros(sem.size, np.int64)
-        raw[thing] = cluster(noisy(box_centres(xyz[thing], key[thing]), xyz[thing], rng, noise))
-        out.append(tracker.add_frame(xyz, sem, raw, poses[f], thing=thing))
+        sem, inst = _train(labels[f], label_map)
+        fsem, finst = _panoptic(scan[:, :3], sem, inst, label_map, clusterer, seed + f, noise_scale)
+        out.append(tracker.add_frame(scan[:, :3], fsem, finst, poses[f]))
     return out

@@ -1,49 +1,65 @@
-"""KISS-ICP poses for a log whose poses are withheld, against the true trajectory."""
+"""KISS-ICP poses for a synthetic log whose poses are withheld, against the true trajectory."""
 
 import sys
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
+from dsnet_core.io import kitti
+from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.odometry import OdometryError, estimate_poses, trajectory_drift
-from tests.dsnet_core import raycast_scene as rs
+from dsnet_core.synth import generate_log
+
+CAR_RAW = 10  # parked cars (moving ones are 252)
 
 
 @pytest.fixture(scope="module")
-def street_log():
-    poses = rs.trajectory(30)
-    boxes, car = rs.street(poses)
-    rng = np.random.default_rng(0)
-    scans = [rs.scan(p, boxes, rng) for p in poses]
-    return poses, boxes, car, scans
+def withheld(tmp_path_factory):
+    """A 30-frame VLP-32 log; its poses are read, then poses.txt is deleted."""
+    root = tmp_path_factory.mktemp("odometry_log")
+    generate_log(root, sequences=1, frames=30, seed=5, sensor="vlp32")
+    reader = SemanticKittiReader(root)
+    frames = reader.frames("00")
+    truth = np.stack([reader.pose(f) for f in frames])
+    (root / "sequences" / "00" / "poses.txt").unlink()
+    reader = SemanticKittiReader(root)
+    assert reader.pose(reader.frames("00")[0]) is None
+    scans = [reader.scan(f) for f in frames]
+    labels = [reader.labels(f) for f in frames]
+    return truth, scans, labels, estimate_poses(scans)
 
 
-def test_drift_against_the_true_trajectory(street_log):
-    poses, _, _, scans = street_log
-    est = estimate_poses([s for s, _ in scans])
+def test_drift_against_the_true_trajectory(withheld):
+    truth, _, _, est = withheld
     assert est.shape == (30, 4, 4)
     np.testing.assert_array_equal(est[0], np.eye(4))  # LiDAR-frame poses, Tr = identity
-    drift = trajectory_drift(est, poses)
-    assert drift["path_m"] == pytest.approx(29.0, abs=0.1)
-    # measured: 0.35 % end-point translation, 0.006 deg/m heading, 0.12 m worst position
-    assert drift["end_translation_pct"] < 2.0
-    assert drift["end_rotation_deg_per_m"] < 0.05
-    assert drift["max_position_error_m"] < 0.5
+    drift = trajectory_drift(est, truth)
+    assert drift["path_m"] > 20
+    # measured: 0.94 % end-point translation, 0.039 deg/m heading, 0.25 m worst position
+    assert drift["end_translation_pct"] < 3.0
+    assert drift["end_rotation_deg_per_m"] < 0.1
+    assert drift["max_position_error_m"] < 0.6
 
 
-def test_parked_object_coincides_with_estimated_poses(street_log):
-    poses, boxes, car, scans = street_log
-    est = estimate_poses([s for s, _ in scans])
-    box0 = boxes[car] - poses[0][:3, 3]  # the world box in the first scan's frame (no rotation)
-    dist = {}
-    for name, aligned in (("estimated", est), ("true", np.linalg.inv(poses[0]) @ poses)):
-        pts = [s[w == car] @ aligned[f][:3, :3].T + aligned[f][:3, 3] for f, (s, w) in enumerate(scans)]
-        frames_seen = sum(len(p) > 0 for p in pts)
-        dist[name] = rs.box_distance(np.concatenate(pts), box0)
-    assert frames_seen >= 10
-    # measured: median 2.2 cm / 95th 6.1 cm with estimated poses, 0.7 / 2.8 cm with true poses
-    assert np.median(dist["estimated"]) < 0.05 and np.percentile(dist["estimated"], 95) < 0.15
-    assert np.median(dist["true"]) < 0.02
+def test_parked_car_coincides_with_estimated_poses(withheld):
+    truth, scans, labels, est = withheld
+    sem, inst = kitti.split_label(labels[0])
+    ids, counts = np.unique(inst[(sem == CAR_RAW) & (inst > 0)], return_counts=True)
+    car = ids[counts.argmax()]  # the parked car best seen in the first frame
+    med = {}
+    for name, aligned in (("estimated", est), ("true", np.linalg.inv(truth[0]) @ truth)):
+        pts = []
+        for f, (scan, lab) in enumerate(zip(scans, labels, strict=True)):
+            s, i = kitti.split_label(lab)
+            xyz = scan[(s == CAR_RAW) & (i == car), :3].astype(np.float64)
+            pts.append(xyz @ aligned[f][:3, :3].T + aligned[f][:3, 3])
+        ref = cKDTree(pts[0])
+        med[name] = float(np.median(np.concatenate([ref.query(p)[0] for p in pts[1:] if len(p)])))
+    # distance of later frames' car points to the first frame's car points (sampling-limited):
+    # measured 0.103 m with estimated poses vs 0.089 m with the true ones
+    assert med["true"] < 0.15
+    assert med["estimated"] < med["true"] + 0.05
 
 
 def test_trajectory_drift_of_a_known_error():

@@ -68,17 +68,20 @@ def _print_summary(summary) -> None:
 
 
 # Command registrations: one line per command, bodies live in flows/commands/.
+from flows.commands import demo as _demo  # noqa: E402
+from flows.commands import export as _export  # noqa: E402
 from flows.commands import label as _label  # noqa: E402
 from flows.commands import synth as _synth  # noqa: E402
 from flows.commands.eval import eval_command  # noqa: E402
 from flows.commands.train import train as _train  # noqa: E402
 
 app.command()(_synth.synth)
-app.command()(_synth.demo)
+app.command()(_demo.demo)
 app.command(name="eval")(eval_command)
 app.command("label")(_label.label)
 app.command("status")(_label.status)
 app.command(name="train")(_train)
+app.command("export")(_export.export)
 
 
 def main() -> None:

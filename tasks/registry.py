@@ -4,10 +4,15 @@ from __future__ import annotations
 
 from tasks.align import AlignStage
 from tasks.base import Stage
+from tasks.fuse import FuseStage
 from tasks.infer import InferStage
 from tasks.ingest import IngestStage
+from tasks.shift import ShiftStage
+from tasks.stitch import StitchStage
 
-STAGES: dict[str, Stage] = {s.name: s for s in (IngestStage(), AlignStage(), InferStage())}
+STAGES: dict[str, Stage] = {
+    s.name: s for s in (IngestStage(), AlignStage(), InferStage(), ShiftStage(), FuseStage(), StitchStage())
+}
 
 
 def stage_order() -> list[str]:

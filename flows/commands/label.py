@@ -9,10 +9,14 @@ def label(
     data: str = typer.Argument(..., help="Log root in the SemanticKITTI layout (holds sequences/)."),
     run: str = typer.Option(..., "--run", help="Run store root: a folder or s3://bucket/prefix."),
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
-    scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
+    scans: int = typer.Option(2, min=1, max=16, help="k, scans per 4D volume (1 = 3D, 2 = 4D default)."),
     stride: int = typer.Option(None, help="Step between volumes (default k-1, or 1 for k=1)."),
+    checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled demo model)."),
+    clusterer: str = typer.Option(
+        None, help="dynamic_shift (default), meanshift, dbscan, hdbscan or bfs; or a JSON clusterer config."
+    ),
+    until: str = typer.Option(None, help="Stop after this stage (e.g. align)."),
     from_stage: str = typer.Option(None, help="Recompute this stage and everything downstream."),
-    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
     force: bool = typer.Option(False, help="Recompute every stage."),
     on_error: str = typer.Option("fail", help="fail: stop on a bad frame; skip: quarantine it and go on."),
     workers: int = typer.Option(None, help="Run blocks on a local Dask cluster of N worker processes."),
@@ -21,39 +25,78 @@ def label(
     ),
     block_size: int = typer.Option(25, help="Frames or volumes per task."),
     lock_wait: float = typer.Option(0.0, help="Seconds to wait for another run's lock before failing."),
-    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
 ) -> None:
-    """Label a log into a run store, resuming whatever is already done there."""
+    """Label a log into a run store (ingest → align → infer → shift → fuse → stitch), resuming
+    whatever is already done there."""
+    if on_error not in ("fail", "skip"):
+        raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
+    if workers and dask_address:
+        raise typer.BadParameter("give --workers or --dask-address, not both")
+    stages = stage_settings(scans, stride, checkpoint, clusterer)
+    options = {"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait}
+    seqs = sequences.split(",") if sequences else None
+    summary = run_label_flow(
+        data, run, seqs, stages, options, from_stage, force, until, workers, dask_address
+    )
+    _print_summary(summary)
+    typer.echo(f"wrote run store {run}")
+    if any(r["action"] == "failed" for r in summary):
+        raise typer.Exit(code=1)
+
+
+def stage_settings(
+    scans: int, stride: int | None, checkpoint: str | None, clusterer: str | None
+) -> dict[str, dict]:
+    """The per-stage config of a label run from the command-line options."""
+    import json
+    from pathlib import Path
+
+    stages: dict[str, dict] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
+    if checkpoint:
+        stages["infer"] = {"checkpoint": str(Path(checkpoint).expanduser().resolve())}
+    if clusterer:
+        try:
+            cfg = json.loads(clusterer) if clusterer.lstrip().startswith("{") else {"kind": clusterer}
+        except json.JSONDecodeError as exc:
+            raise typer.BadParameter(f"--clusterer is not valid JSON: {exc}") from None
+        stages["shift"] = {"clusterer": cfg}
+    return stages
+
+
+def run_label_flow(
+    data,
+    run,
+    seqs,
+    stages,
+    options,
+    from_stage=None,
+    force=False,
+    until=None,
+    workers=None,
+    dask_address=None,
+) -> list[dict]:
+    """Run ``label-dataset`` with progress bars; typed errors become exit code 2 with the message."""
     import os
 
     from flows.server import prefect_api, quiet_prefect_env
 
     quiet_prefect_env()
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")  # keep the progress bars readable
-    if on_error not in ("fail", "skip"):
-        raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
-    if workers and dask_address:
-        raise typer.BadParameter("give --workers or --dask-address, not both")
+    from pydantic import ValidationError
+
     from dsnet_core.errors import DsnetError
     from storage.errors import StoreError
 
-    stages = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
-    options = {"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait}
-    seqs = sequences.split(",") if sequences else None
     try:
         with prefect_api():
             from flows.label import label_dataset, task_runner
 
             flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
             with _progress_bars():
-                summary = flow(data, run, seqs, stages, options, from_stage, force, until=until)
-    except (DsnetError, StoreError, ValueError) as exc:
+                return flow(data, run, seqs, stages, options, from_stage, force, until=until)
+    except (DsnetError, StoreError, ValueError, ValidationError) as exc:
         typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
         raise typer.Exit(code=2) from None
-    _print_summary(summary)
-    typer.echo(f"wrote run store {run}")
-    if any(r["action"] == "failed" for r in summary):
-        raise typer.Exit(code=1)
 
 
 def status(root: str = typer.Argument(..., help="Run store root (folder or s3://…).")) -> None:

@@ -17,7 +17,7 @@ from tasks.runner import run_stage_plain, stage_state
 from tests.flows.conftest import REPO, cli
 from tests.logs import make_log
 
-ARGS = ("--scans", "3", "--stride", "1", "--block-size", "1", "--until", "align")
+ARGS = ("--scans", "3", "--stride", "1", "--block-size", "1", "--until", "align")  # the store stages only
 N_FRAMES = 24
 N_VOLUMES = N_FRAMES - 2
 

@@ -1,5 +1,6 @@
 """``dsnet synth`` and ``dsnet demo`` as a user runs them (real subprocesses, real files)."""
 
+import json
 import os
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import pytest
 
 from dsnet_core.io import kitti
 from dsnet_core.io.semantickitti import SemanticKittiReader
+from dsnet_core.model.bundle import bundled_checkpoint
 from dsnet_core.synth import kitti_tr
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -65,8 +67,31 @@ def test_demo_is_honest(tmp_path):
     res = dsnet("demo", "--out", str(tmp_path / "demo"), "--frames", "2")
     assert res.returncode == 0, res.stderr
     assert "class histogram" in res.stdout and "motorcyclist" in res.stdout
-    assert "Labelling: not yet available" in res.stdout
-    assert len(SemanticKittiReader(tmp_path / "demo").frames("00")) == 2
+    if bundled_checkpoint() is None:
+        assert "no bundled model yet" in res.stdout and "PQ" not in res.stdout
+    assert len(SemanticKittiReader(tmp_path / "demo" / "log").frames("00")) == 2
     # a second run replaces its own log
     assert dsnet("demo", "--out", str(tmp_path / "demo"), "--frames", "1").returncode == 0
-    assert len(SemanticKittiReader(tmp_path / "demo").frames("00")) == 1
+    assert len(SemanticKittiReader(tmp_path / "demo" / "log").frames("00")) == 1
+
+
+@pytest.mark.slow
+def test_demo_labels_exports_and_scores_with_a_checkpoint(tmp_path, cli_env):
+    from tests.model_helpers import make_checkpoint
+
+    ckpt = make_checkpoint(tmp_path / "ckpt")
+    out = tmp_path / "demo"
+    args = ("demo", "--out", str(out), "--frames", "3", "--sensor", "vlp32", "--checkpoint", str(ckpt))
+    res = subprocess.run(
+        [sys.executable, "-m", "flows.cli", *args],
+        cwd=ROOT,
+        env=cli_env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert res.returncode == 0, res.stderr
+    assert "records no training" in res.stdout  # a random-weight checkpoint is not passed off as a model
+    assert "PQ† and LSTQ" in res.stdout and f"scores {out / 'scores.json'}" in res.stdout
+    assert len(list((out / "predictions/sequences/00/predictions").glob("*.label"))) == 3
+    assert json.loads((out / "scores.json").read_text())["frames"] == 3

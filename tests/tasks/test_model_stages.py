@@ -1,18 +1,22 @@
-"""Stage infer through the plain runner on a synthetic vlp32 log (k = 2),
+"""Stages infer, shift, fuse, stitch through the plain runner on a synthetic vlp32 log (k = 2),
 with a random-weight tiny checkpoint: values against direct dsnet_core calls, invariants, resume."""
 
 import numpy as np
 import pytest
+from pydantic import TypeAdapter
 
+from dsnet_core.clustering import ClustererConfig, get_clusterer
+from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
+from dsnet_core.model.bundle import load_shift_weights
 from dsnet_core.model.inference import Predictor
 from storage.run import RunStore
 from tasks.infer import dequantise_probs
-from tasks.runner import run_stage_plain
+from tasks.runner import prepare_stage, run_stage_plain
 from tests.model_helpers import make_checkpoint
 
 LM = load_label_map("semantic-kitti")
-STAGES = ("ingest", "align", "infer")
+STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
 SHIFT_4D = {"kind": "dynamic_shift", "n_seeds": 300, "bandwidths": [0.2, 1.8, 3.4]}
 
 
@@ -22,6 +26,7 @@ def run_config(log, ckpt, scans=2, clusterer=None):
         "stages": {
             "align": {"scans": scans},
             "infer": {"checkpoint": str(ckpt)},
+            "shift": {"clusterer": clusterer or SHIFT_4D},
         },
         "options": {"block_size": 2},
     }
@@ -49,3 +54,150 @@ def test_infer_matches_the_predictor(labelled):
     assert np.array_equal(got["offsets"], want.offsets) and np.array_equal(got["features"], want.features)
     assert m["infer"].counts["points"] == m["align"].counts["points"]
     assert m["infer"].counts["thing_points"] > 0  # random weights still predict some thing classes
+
+
+def test_shift_ids_equal_the_clusterer(labelled):
+    store, _, ckpt, _ = labelled
+    xyz = store.arrays("00", "align").read_item(1)["points"][:, :3]
+    inf = store.arrays("00", "infer").read_item(1)
+    got = store.arrays("00", "shift").read_item(1)
+    thing = LM.is_thing()[inf["sem"]]
+    assert (got["instance"][~thing] == 0).all() and (got["instance"][thing] > 0).all()
+    cfg = TypeAdapter(ClustererConfig).validate_python(SHIFT_4D)
+    clusterer = get_clusterer(cfg, load_shift_weights(ckpt))
+    want = clusterer.cluster(
+        xyz[thing], (xyz[thing] + inf["offsets"][thing]).astype(np.float32), inf["features"][thing]
+    )
+    assert np.array_equal(got["instance"][thing], want)
+    seeds = ~np.isnan(got["seed_position"][:, 0])
+    assert seeds.sum() == min(300, thing.sum()) and not seeds[~thing].any()
+
+
+def test_fuse_one_class_per_instance_and_stuff_untouched(labelled):
+    store, _, _, m = labelled
+    rows = store.read_table("00", "fuse", "instances").to_pydict()
+    assert len(rows["id"]) == m["fuse"].counts["instances"] > 0
+    for v in range(m["fuse"].n_items):
+        inf = store.arrays("00", "infer").read_item(v, ["sem"])["sem"]
+        out = store.arrays("00", "fuse").read_item(v)
+        stuff = ~LM.is_thing()[inf]
+        assert (out["inst"][stuff] == 0).all() and np.array_equal(out["sem"][stuff], inf[stuff])
+        ids = np.unique(out["inst"][out["inst"] > 0])
+        mine = [i for i, idx in enumerate(rows["index"]) if idx == v]
+        assert sorted(rows["id"][i] for i in mine) == ids.tolist()
+        for i in mine:
+            sel = out["inst"] == rows["id"][i]
+            assert set(out["sem"][sel].tolist()) == {rows["class_id"][i]} and sel.sum() == rows["n_points"][i]
+            assert 0 < rows["confidence"][i] <= 1 and 0 < rows["agreement"][i] <= 1
+
+
+def test_stitch_labels_split_back_to_frames_by_ownership(labelled, synth_log):
+    store, _, _, m = labelled
+    reader = SemanticKittiReader(synth_log)
+    refs = reader.frames("00")
+    windows = m["align"].plan["windows"]
+    assert windows == [[0, 1], [1, 2], [2, 3], [3, 4], [4, 5]]
+    stitch = store.arrays("00", "stitch")
+    assert stitch.done().all() and m["stitch"].counts["frames"] == 6 and len(m["stitch"].blocks) == 1
+    seen_ids = {}
+    labels = [stitch.read_item(f)["label"] for f in range(6)]
+    for f in range(6):
+        label = labels[f]
+        assert label.shape == (reader.scan(refs[f]).shape[0],)
+        owner = next(v for v, w in enumerate(windows) if f in w)  # the first volume holding the frame
+        src = store.arrays("00", "align").read_item(owner)
+        fused = store.arrays("00", "fuse").read_item(owner)
+        sel = src["source_frame"] == f
+        assert np.array_equal(np.sort(src["source_index"][sel]), np.arange(label.size))  # once each
+        want_sem = LM.to_raw(fused["sem"][sel].astype(np.int64))
+        assert np.array_equal(label[src["source_index"][sel]] & 0xFFFF, want_sem)
+        inst = label >> 16
+        assert ((inst > 0) == LM.is_thing()[LM.to_train(label & 0xFFFF)]).all()
+        for tid in np.unique(inst[inst > 0]).tolist():
+            seen_ids.setdefault(tid, []).append(f)
+    tracks = store.read_table("00", "stitch", "tracks").to_pydict()
+    assert tracks["id"] == sorted(seen_ids) and m["stitch"].counts["tracks"] == len(tracks["id"])
+    for k, tid in enumerate(tracks["id"]):
+        assert tracks["frames"][k] == seen_ids[tid]
+        assert tracks["first_frame"][k] == seen_ids[tid][0] and tracks["last_frame"][k] == seen_ids[tid][-1]
+        total = sum(int(((labels[f] >> 16) == tid).sum()) for f in seen_ids[tid])
+        assert tracks["n_points"][k] == total == sum(tracks["frame_points"][k])
+    assert all(0 < c <= 1 for c in tracks["confidence"])
+
+
+def test_clusterer_change_and_new_checkpoint_reprocess_only_downstream(labelled, synth_log, tmp_path):
+    store, run, _, m = labelled
+    assert all(prepare_stage(store, "00", s, run, "r1").action == "skip" for s in STAGES)
+    dbscan = run_config(synth_log, run["stages"]["infer"]["checkpoint"], clusterer={"kind": "dbscan"})
+    assert prepare_stage(store, "00", "infer", dbscan, "r2").action == "skip"
+    other = make_checkpoint(tmp_path / "other", seed=1)
+    new_model = run_config(synth_log, other)
+    assert prepare_stage(store, "00", "align", new_model, "r3").action == "skip"
+    from storage.manifest import fingerprint
+    from tasks.registry import STAGES as SPECS
+    from tasks.runner import make_context, resolved_config
+
+    def infer_fp(r):
+        ctx = make_context(store, "00", "infer", r)
+        up = {"align": m["align"].fingerprint}
+        return fingerprint("infer", "1", resolved_config("infer", r), up, SPECS["infer"].inputs(ctx))
+
+    assert infer_fp(run) == m["infer"].fingerprint and infer_fp(new_model) != m["infer"].fingerprint
+    # the same weights under another path with other shifting weights: still a new model
+    make_checkpoint(tmp_path / "noshift", seed=0, shift_weights=False)
+    assert SPECS["infer"].inputs(
+        make_context(store, "00", "infer", run_config(synth_log, tmp_path / "noshift"))
+    ) != (SPECS["infer"].inputs(make_context(store, "00", "infer", run)))
+
+
+KILL_AT_THIRD_VOLUME = """
+import os, signal, sys
+import dsnet_core.stitching as st
+from storage.run import RunStore
+from tasks.runner import run_stage_plain
+
+_orig, _calls = st.Stitcher.add_volume, [0]
+def add_volume(self, volume):
+    _calls[0] += 1
+    if _calls[0] == 3:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return _orig(self, volume)
+st.Stitcher.add_volume = add_volume
+store = RunStore(sys.argv[1])
+run_stage_plain(store, "00", "stitch", store.read_run_config("r1"), "r1", force=True)
+"""
+
+
+def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path):
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    store, run, _, m = labelled
+    root = tmp_path / "run"
+    shutil.copytree(store.uri, root)
+    repo = Path(__file__).resolve().parents[2]
+    res = subprocess.run(
+        [sys.executable, "-c", KILL_AT_THIRD_VOLUME, str(root)],
+        cwd=repo,
+        env={**__import__("os").environ, "PYTHONPATH": str(repo)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == -signal.SIGKILL, res.stderr
+    copy = RunStore(root)
+    assert copy.arrays("00", "stitch").done().tolist() == [True] * 3 + [False] * 3
+    assert copy.read_manifest("00", "stitch").status == "running"
+    d = prepare_stage(copy, "00", "stitch", run, "r1")
+    assert d.action == "resume" and len(d.jobs) == 1
+    resumed = run_stage_plain(copy, "00", "stitch", run, "r1")
+    assert resumed.fingerprint == m["stitch"].fingerprint and resumed.counts == m["stitch"].counts | {
+        "resumed_frames": 3
+    }
+    for f in range(6):
+        a = copy.arrays("00", "stitch").read_item(f)["label"]
+        assert np.array_equal(a, store.arrays("00", "stitch").read_item(f)["label"])
+    assert copy.read_table("00", "stitch", "tracks").equals(store.read_table("00", "stitch", "tracks"))

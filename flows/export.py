@@ -1,0 +1,69 @@
+"""Export a run store's final labels (stage ``stitch``) in the SemanticKITTI predictions layout.
+
+``OUT/sequences/SS/predictions/NNNNNN.label``: uint32 per point in the scan's own order,
+raw semantic id (``learning_map_inv``) | instance << 16 — what ``dsnet eval --pred OUT`` and
+the SemanticKITTI benchmark read. Frame names come from the ingest frame table. Plain functions:
+no Prefect.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from storage.errors import StoreError
+from storage.run import RunStore
+
+
+@dataclass
+class ExportSummary:
+    """What an export wrote.
+
+    Attributes:
+        out: the predictions root.
+        frames: sequence -> number of label files written.
+        missing: sequence -> frame ids without a final label (quarantined frames).
+    """
+
+    out: Path
+    frames: dict[str, int] = field(default_factory=dict)
+    missing: dict[str, list[str]] = field(default_factory=dict)
+
+
+def export_semantickitti(
+    root: str, out: str | Path, sequences: list[str] | None = None, storage_options: dict | None = None
+) -> ExportSummary:
+    """Write ``out/sequences/SS/predictions/*.label`` for every sequence whose ``stitch`` is done.
+
+    Raises:
+        StoreError: a requested sequence (or, with none requested, every sequence) has no
+            finished ``stitch`` stage.
+    """
+    from dsnet_core.io.kitti import write_label
+
+    store = RunStore(root, storage_options)
+    out = Path(out)
+    names = sequences if sequences is not None else store.sequences()
+    summary = ExportSummary(out=out)
+    for seq in sorted(names):
+        m = store.read_manifest(seq, "stitch")
+        if m is None or m.status != "done":
+            if sequences is not None:
+                raise StoreError(store.root.url(store.stage_rel(seq, "stitch")), "stage 'stitch' is not done")
+            continue
+        ids = store.read_table(seq, "ingest", "frames")["frame_id"].to_pylist()
+        arrays = store.arrays(seq, "stitch")
+        done = arrays.done()
+        folder = out / "sequences" / seq / "predictions"
+        folder.mkdir(parents=True, exist_ok=True)
+        summary.frames[seq] = 0
+        summary.missing[seq] = []
+        for index, frame_id in enumerate(ids):
+            if not done[index]:
+                summary.missing[seq].append(frame_id)
+                continue
+            write_label(folder / f"{frame_id}.label", arrays.read_item(index, ["label"])["label"])
+            summary.frames[seq] += 1
+    if not summary.frames:
+        raise StoreError(store.uri, "no sequence has a finished 'stitch' stage to export")
+    return summary

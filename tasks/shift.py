@@ -1,0 +1,161 @@
+"""Stage ``shift``: class-agnostic instance clustering of each volume's predicted thing points.
+
+The clusterer comes from :mod:`dsnet_core.clustering` through its pydantic config (``kind`` =
+``dynamic_shift`` by default; ``meanshift``, ``dbscan``, ``hdbscan``, ``bfs`` for the ablation
+and as fallbacks). Its input is the thing points (predicted thing classes) with their regressed
+centres ``xyz + offset`` and instance features. Output per point: ``instance`` (int32 raw ids
+1..K, volume-local; 0 for stuff); with dynamic shifting also ``seed_position`` (the converged
+position at every FPS seed, NaN elsewhere) for inspection.
+
+Dynamic shifting needs trained shifting MLPs: they are read from the infer checkpoint's
+``shift.safetensors``. A checkpoint without them falls back to fixed weights (0, 1, 0) — plain
+blurring mean shift with the middle bandwidth — logged as a warning and counted in the manifest
+(``fixed_shift_weights``). Default settings follow the volumes: 3D (bandwidths 0.2/1.7/3.2 m,
+10 000 seeds) for k = 1, 4D (0.2/1.8/3.4 m, 20 000 seeds) for k > 1.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+
+import numpy as np
+from pydantic import Field
+
+from dsnet_core.clustering import ClustererConfig, DynamicShiftConfig
+from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+
+log = logging.getLogger(__name__)
+
+FALLBACK_WEIGHTS = (0.0, 1.0, 0.0)
+
+
+class ShiftConfig(StageConfig):
+    """Clustering settings.
+
+    Attributes:
+        clusterer: a clusterer config (``{"kind": "dbscan", "eps": 0.5}``); None = dynamic shifting
+            with the 3D or 4D defaults by the volumes' k.
+        keep_seeds: also store the seeds' converged positions (dynamic shifting only).
+    """
+
+    clusterer: ClustererConfig | None = Field(None)
+    keep_seeds: bool = True
+
+
+def effective_clusterer(config: ShiftConfig, scans: int):
+    """The clusterer config a run uses: the configured one, or dynamic shifting for k scans."""
+    if config.clusterer is not None:
+        return config.clusterer
+    return DynamicShiftConfig() if scans <= 1 else DynamicShiftConfig.for_4d()
+
+
+def cluster_volume(clusterer, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray | None):
+    """Ids of the thing points, and for dynamic shifting the seeds and their converged positions.
+
+    Args:
+        clusterer: from :func:`dsnet_core.clustering.get_clusterer`.
+        xyz, centres: float32 ``(M, 3)`` thing points and regressed centres, metres.
+        features: ``(M, D)`` instance features.
+
+    Returns:
+        ``(ids int64 (M,), seeds int64 (S,) or None, converged float32 (S, 3) or None)``; the ids
+        equal ``clusterer.cluster(xyz, centres, features)``.
+    """
+    from scipy.spatial import cKDTree
+
+    from dsnet_core.clustering import DynamicShiftClusterer
+    from dsnet_core.meanshift import cluster_seeds
+
+    m = xyz.shape[0]
+    if not isinstance(clusterer, DynamicShiftClusterer) or m < 2:
+        return clusterer.cluster(xyz, centres, features), None, None
+    seeds, converged = clusterer.shift(xyz, centres, features)  # the same steps as cluster()
+    seed_ids = cluster_seeds(converged, clusterer.final_bandwidth)
+    if seeds.size == m:
+        ids = np.empty(m, dtype=np.int64)
+        ids[seeds] = seed_ids
+    else:
+        _, nn = cKDTree(xyz[seeds]).query(xyz, k=1)
+        ids = seed_ids[nn]
+    return ids, seeds, converged
+
+
+class ShiftStage(Stage):
+    name = "shift"
+    upstream = ("infer",)
+    version = "1"
+    Config = ShiftConfig
+
+    def plan(self, ctx: StageContext) -> Plan:
+        infer = ctx.store.read_manifest(ctx.sequence, "infer")
+        scans = int(ctx.store.read_manifest(ctx.sequence, "align").config.get("scans", 1))
+        cfg = effective_clusterer(ctx.config, scans)
+        dynamic = isinstance(cfg, DynamicShiftConfig)
+        return Plan(
+            n_items=infer.n_items,
+            max_points=int(infer.plan["max_points"]),
+            omit=() if dynamic and ctx.config.keep_seeds else ("seed_position",),
+            meta={
+                "clusterer": cfg.model_dump(mode="json"),
+                "checkpoint": infer.plan["checkpoint"],
+                "seeds": dynamic and ctx.config.keep_seeds,
+            },
+        )
+
+    def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
+        from pydantic import TypeAdapter
+
+        from dsnet_core.clustering import get_clusterer
+        from dsnet_core.labels import load_label_map
+        from dsnet_core.model.bundle import load_shift_weights
+        from dsnet_core.shifting import DynamicShift
+
+        cfg = TypeAdapter(ClustererConfig).validate_python(ctx.plan["clusterer"])
+        fixed = 0
+        weights = None
+        if isinstance(cfg, DynamicShiftConfig):
+            weights = load_shift_weights(ctx.plan["checkpoint"])
+            if weights is None:
+                log.warning(
+                    "checkpoint %s has no shifting weights; dynamic shifting uses fixed weights %s",
+                    ctx.plan["checkpoint"],
+                    FALLBACK_WEIGHTS,
+                )
+                weights = DynamicShift.with_fixed_weights(
+                    FALLBACK_WEIGHTS, cfg.bandwidths, iterations=cfg.iterations, feature_dim=cfg.feature_dim
+                )
+                fixed = 1
+        clusterer = get_clusterer(cfg, weights)
+        thing_lut = load_label_map("semantic-kitti").is_thing()
+        align = ctx.store.arrays(ctx.sequence, "align")
+        infer = ctx.store.arrays(ctx.sequence, "infer")
+        for item in items:
+            xyz = align.read_item(item, ["points"])["points"][:, :3]
+            inf = infer.read_item(item, ["sem", "offsets", "features"])
+            thing = thing_lut[inf["sem"]]
+            t_xyz = np.ascontiguousarray(xyz[thing])
+            centres = np.ascontiguousarray(t_xyz + inf["offsets"][thing], dtype=np.float32)
+            feats = np.ascontiguousarray(inf["features"][thing])
+            ids, seeds, converged = cluster_volume(clusterer, t_xyz, centres, feats)
+            n = int(xyz.shape[0])
+            instance = np.zeros(n, np.int32)
+            instance[thing] = ids
+            arrays = {"instance": instance}
+            if ctx.plan["seeds"]:
+                pos = np.full((n, 3), np.nan, np.float32)
+                if seeds is not None:
+                    pos[np.flatnonzero(thing)[seeds]] = converged
+                arrays["seed_position"] = pos
+            yield ItemResult(
+                item,
+                arrays=arrays,
+                n_points=n,
+                counts={
+                    "volumes": 1,
+                    "points": n,
+                    "thing_points": int(thing.sum()),
+                    "instances": int(ids.max(initial=0)),
+                    "fixed_shift_weights": fixed,
+                },
+            )

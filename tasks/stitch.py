@@ -1,0 +1,183 @@
+"""Stage ``stitch``: sequence-wide instance ids and each frame's final SemanticKITTI label.
+
+Reads ``fuse`` (per volume: train ids, raw instance ids, instance confidences) and ``align``
+(each point's source frame and source index) and streams the volumes of a sequence through
+:class:`dsnet_core.stitching.Stitcher`: on the frames two consecutive volumes share, the new
+volume's raw ids inherit the tracked ids they overlap with point IoU > 0.5 (one-to-one); every
+other raw id takes a fresh id from one counter per sequence (never reused). For k = 1 volumes
+share no frame, so this is exactly "hand out sequence-wide ids from one counter".
+
+**Ownership rule: a frame's label comes from the first volume (in sequence order) that
+contains it**; later volumes only use their predictions on that frame to match ids. It is
+written once and never changes.
+
+Output per frame (item = frame, the ingest frame table's ``index``): ``label`` uint32 in the
+ORIGINAL point order of the frame's scan (points put back through align's ``source_frame`` /
+``source_index``), ``learning_map_inv[train id] | id << 16``; quarantined frames get no label
+(``done`` stays 0). Table ``tracks``: one row per id (class, first/last frame, points per
+frame, confidence = point-weighted mean of fuse's instance confidence, lowest linking IoU).
+
+Stitching is sequential, so a sequence is one block. It is resumable inside the block: after
+each volume's frames are written, the stitcher's state goes to ``stitch/state.json`` (tagged with
+the stage's fingerprint and the volume); a rerun of the block continues after the last saved
+volume whose owned frames are all ``done``, and the last volume is always recomputed (it also
+carries the track table). A killed stitch therefore resumes to identical labels.
+"""
+
+from __future__ import annotations
+
+import math
+import posixpath
+from collections.abc import Iterator
+
+import numpy as np
+
+from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+
+
+class StitchConfig(StageConfig):
+    """Matching settings.
+
+    Attributes:
+        min_iou: a tracked id carries over when the point IoU on the shared frames is above this.
+    """
+
+    min_iou: float = 0.5
+
+
+def _state_rel(ctx: StageContext) -> str:
+    return posixpath.join(ctx.store.stage_rel(ctx.sequence, "stitch"), "state.json")
+
+
+class StitchStage(Stage):
+    name = "stitch"
+    upstream = ("fuse", "align")
+    version = "1"
+    Config = StitchConfig
+
+    def plan(self, ctx: StageContext) -> Plan:
+        t = ctx.frames.to_pydict()
+        align = ctx.store.read_manifest(ctx.sequence, "align")
+        ok = [i for i, s in zip(t["index"], t["status"], strict=True) if s == "ok"]
+        sizes = dict(zip(t["index"], t["n_points"], strict=True))
+        return Plan(
+            n_items=len(t["index"]),
+            max_points=max((int(sizes[i]) for i in ok), default=0),
+            meta={"windows": align.plan["windows"], "frame_points": [int(sizes[i]) for i in t["index"]]},
+            blocks=[list(range(len(t["index"])))],
+        )
+
+    def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
+        from dsnet_core.labels import load_label_map
+        from dsnet_core.stitching import Stitcher, VolumeLabels
+
+        label_map = load_label_map("semantic-kitti")
+        windows = [list(w) for w in ctx.plan["windows"]]
+        frame_points = np.asarray(ctx.plan["frame_points"], np.int64)
+        # the stitcher wants contiguous frame numbers: use ranks among the frames in any window
+        absolute = np.array(sorted({f for w in windows for f in w}), np.int64)
+        rank = {int(f): r for r, f in enumerate(absolute.tolist())}
+        fingerprint = ctx.store.read_manifest(ctx.sequence, "stitch").fingerprint
+        out = ctx.store.arrays(ctx.sequence, "stitch")
+        stitcher, start = self._resume(ctx, fingerprint, windows, out.done(), label_map)
+        if stitcher is None:
+            stitcher = Stitcher(label_map, min_iou=ctx.config.min_iou)
+        # frames already written by an interrupted run of this block count towards the totals
+        before = sorted({f for w in windows[:start] for f in w})
+        carried = {
+            "frames": len(before),
+            "points": int(frame_points[before].sum()) if before else 0,
+            "resumed_frames": len(before),
+        }
+        scores = self._scores(ctx)
+        align = ctx.store.arrays(ctx.sequence, "align")
+        fuse = ctx.store.arrays(ctx.sequence, "fuse")
+        for v in range(start, len(windows)):
+            w = windows[v]
+            src = align.read_item(v, ["source_frame", "source_index"])
+            fused = fuse.read_item(v, ["sem", "inst"])
+            ranks = np.array([rank[f] for f in w], np.int64)
+            lut = np.zeros(int(absolute.max()) + 1, np.int64)
+            lut[absolute] = np.arange(absolute.size)
+            volume = VolumeLabels(
+                frames=ranks,
+                source_frame=lut[src["source_frame"]],
+                source_index=src["source_index"],
+                semantic=fused["sem"].astype(np.int64),
+                instance=fused["inst"].astype(np.int64),
+                frame_sizes=frame_points[w],
+                scores=scores.get(v),
+            )
+            finished = stitcher.add_volume(volume)
+            for j, ff in enumerate(finished):
+                rows = {}
+                if v == len(windows) - 1 and j == len(finished) - 1:
+                    rows = {"tracks": self._track_rows(stitcher, label_map, absolute)}
+                counts = {
+                    "frames": 1,
+                    "points": int(ff.label.shape[0]),
+                    "tracks": len(rows.get("tracks", [])),
+                }
+                for key, n in carried.items():
+                    counts[key] = counts.get(key, 0) + n
+                carried = {}
+                yield ItemResult(
+                    int(absolute[ff.frame]),
+                    arrays={"label": ff.label},
+                    n_points=int(ff.label.shape[0]),
+                    rows=rows,
+                    counts=counts,
+                )
+            # runs once the runner has written every frame of this volume (done flags set)
+            written = [int(absolute[ff.frame]) for ff in finished]
+            ctx.store.root.write_json(
+                _state_rel(ctx),
+                {"fingerprint": fingerprint, "volume": v, "written": written, "state": stitcher.state_dict()},
+            )
+        ctx.store.root.remove(_state_rel(ctx))
+
+    def _resume(self, ctx: StageContext, fingerprint: str, windows, done: np.ndarray, label_map):
+        """(stitcher, first volume to compute) from a saved state that is still valid, else (None, 0)."""
+        from dsnet_core.stitching import Stitcher
+
+        saved = ctx.store.root.read_json(_state_rel(ctx))
+        if saved is None or saved.get("fingerprint") != fingerprint:
+            return None, 0
+        v = int(saved["volume"])
+        owned = sorted({f for w in windows[: v + 1] for f in w})
+        if v >= len(windows) - 1 or not done[owned].all():
+            return None, 0
+        return Stitcher.from_state(saved["state"], label_map), v + 1
+
+    @staticmethod
+    def _scores(ctx: StageContext) -> dict[int, dict[int, float]]:
+        t = ctx.store.read_table(ctx.sequence, "fuse", "instances").to_pydict()
+        out: dict[int, dict[int, float]] = {}
+        for v, i, c in zip(t["index"], t["id"], t["confidence"], strict=True):
+            if c is not None and not math.isnan(c):
+                out.setdefault(int(v), {})[int(i)] = float(c)
+        return out
+
+    @staticmethod
+    def _track_rows(stitcher, label_map, absolute: np.ndarray) -> list[dict]:
+        t = stitcher.track_table()
+        raw = label_map.to_raw(t.semantic) if t.id.size else np.zeros(0, np.int64)
+        rows = []
+        for k, tid in enumerate(t.id.tolist()):
+            sel = t.frame_track == tid
+            rows.append(
+                {
+                    "id": tid,
+                    "class_id": int(t.semantic[k]),
+                    "raw_class": int(raw[k]),
+                    "first_frame": int(absolute[t.first_frame[k]]),
+                    "last_frame": int(absolute[t.last_frame[k]]),
+                    "n_points": int(t.n_points[k]),
+                    "n_frames": int(t.n_frames[k]),
+                    "confidence": float(t.confidence[k]),
+                    "min_link_iou": float(t.min_link_iou[k]),
+                    "frames": absolute[t.frame_index[sel]].astype(int).tolist(),
+                    "frame_points": t.frame_points[sel].astype(int).tolist(),
+                }
+            )
+        return rows

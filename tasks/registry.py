@@ -6,8 +6,19 @@ from tasks.align import AlignStage
 from tasks.base import Stage
 from tasks.infer import InferStage
 from tasks.ingest import IngestStage
+from tasks.score import ScoreStage
 
-STAGES: dict[str, Stage] = {s.name: s for s in (IngestStage(), AlignStage(), InferStage())}
+
+def _registered(stages: tuple[Stage, ...]) -> dict[str, Stage]:
+    """Stages by name; a stage whose upstream is not registered (not built yet) is left out."""
+    out: dict[str, Stage] = {}
+    for s in stages:
+        if all(u in out for u in s.upstream):
+            out[s.name] = s
+    return out
+
+
+STAGES: dict[str, Stage] = _registered((IngestStage(), AlignStage(), InferStage(), ScoreStage()))
 
 
 def stage_order() -> list[str]:

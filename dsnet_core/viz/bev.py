@@ -80,7 +80,10 @@ def render_bev(
     order = np.flatnonzero(inside)
     if draw_last is not None:
         order = order[np.argsort(np.asarray(draw_last)[order], kind="stable")]
-    img[row[order], col[order]] = colours[order]
+    # 2×2 pixel dots, drawn point after point (later points cover earlier ones)
+    r = np.minimum(row[order][:, None] + np.array([0, 0, 1, 1]), size - 1).ravel()
+    c = np.minimum(col[order][:, None] + np.array([0, 1, 0, 1]), size - 1).ravel()
+    img[r, c] = np.repeat(colours[order], 4, axis=0)
     c = size // 2
     img[c - 1 : c + 2, c - 1 : c + 2] = 255  # the sensor
     return img

@@ -360,6 +360,7 @@ REPORT_TABLES: dict[str, TableSpec] = {
                     ("rank", pa.int32()),  # 0 = least confident
                     ("source", pa.string()),  # stage/table the instance came from
                     ("sequence", pa.string()),
+                    ("item", pa.int32()),  # volume (fuse) or first frame (stitch) index, if known
                     ("instance", pa.int64()),
                     ("class", pa.string()),
                     ("points", pa.int64()),

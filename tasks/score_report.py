@@ -241,22 +241,27 @@ def bev_rows(
 
 
 _ID_COLS = ("instance", "id", "track_id", "instance_id")
-_CLASS_COLS = ("class", "class_name", "semantic", "cls")
+_CLASS_COLS = ("class", "class_name", "class_id", "semantic", "cls")
 _SIZE_COLS = ("points", "n_points", "size")
+_ITEM_COLS = ("index", "first_frame")
 
 
 def review_queue(store: RunStore, sequences: list[str], n: int) -> list[dict[str, Any]]:
     """The ``n`` least confident instances of every stage table that has a ``confidence`` column
     (the fuse instance table, the stitch track table), across sequences."""
+    from dsnet_core.labels import load_label_map
+
+    names = load_label_map("semantic-kitti").class_names
     cands = []
     for stage in stage_order():
         for spec in CONTRACTS[stage].tables:
-            names = spec.schema.names
-            if "confidence" not in names:
+            cols = spec.schema.names
+            if "confidence" not in cols:
                 continue
-            id_col = next((c for c in _ID_COLS if c in names), None)
-            cls_col = next((c for c in _CLASS_COLS if c in names), None)
-            size_col = next((c for c in _SIZE_COLS if c in names), None)
+            id_col = next((c for c in _ID_COLS if c in cols), None)
+            cls_col = next((c for c in _CLASS_COLS if c in cols), None)
+            size_col = next((c for c in _SIZE_COLS if c in cols), None)
+            item_col = next((c for c in _ITEM_COLS if c in cols), None)
             for seq in sequences:
                 m = store.read_manifest(seq, stage)
                 if m is None or m.status != "done":
@@ -264,14 +269,18 @@ def review_queue(store: RunStore, sequences: list[str], n: int) -> list[dict[str
                 t = store.read_table(seq, stage, spec.name).to_pydict()
                 for r in range(len(t["confidence"])):
                     conf = t["confidence"][r]
-                    if conf is None:
+                    if conf is None or not math.isfinite(conf):
                         continue
+                    cls = None if cls_col is None else t[cls_col][r]
+                    if cls_col == "class_id" and cls is not None and 0 <= cls < len(names):
+                        cls = names[cls]
                     cands.append(
                         {
                             "source": f"{stage}/{spec.name}",
                             "sequence": seq,
+                            "item": None if item_col is None else t[item_col][r],
                             "instance": int(t[id_col][r]) if id_col else r,
-                            "class": "" if cls_col is None else str(t[cls_col][r]),
+                            "class": "" if cls is None else str(cls),
                             "points": _total(t[size_col][r]) if size_col else None,
                             "confidence": float(conf),
                         }

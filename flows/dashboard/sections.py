@@ -288,13 +288,14 @@ def review(runs: list[RunTables]) -> str:
     parts = [
         '<section id="s-review"><h2>Review queue</h2><p class="note">Lowest-confidence instances first.</p>'
     ]
-    cols = ("#", "source", "sequence", "instance", "class", "points", "confidence")
+    cols = ("#", "source", "sequence", "volume/frame", "instance", "class", "points", "confidence")
     for r, run in enumerate(runs):
         body = []
         for q in run.review:
             k = f"review:{r}:{q['rank']}"
             body.append(
                 f"<tr><td>{q['rank'] + 1}</td><td>{esc(q['source'])}</td><td>{esc(q['sequence'])}</td>"
+                f"<td>{'–' if q['item'] is None else q['item']}</td>"
                 + cell(str(q["instance"]), f"{k}:instance", q["instance"])
                 + f"<td>{esc(q['class'])}</td>"
                 + cell(fmt.count(q["points"]), f"{k}:points", q["points"])

@@ -136,11 +136,8 @@ def frame_chart(
         out.append(f'<line x1="{left}" y1="{y:.1f}" x2="{left + plot_w}" y2="{y:.1f}" class="grid"/>')
         out.append(f'<text x="{left - 5}" y="{y + 4:.1f}" text-anchor="end" class="axis">{25 * t}</text>')
     out.append(f'<text x="{left + plot_w + 5}" y="{top + 8}" class="axis">PQ %</text>')
-    for k in range(6):
-        i = lo + span * k / 5
-        out.append(
-            f'<text x="{px(i):.1f}" y="{height - 6}" text-anchor="middle" class="axis">{round(i)}</text>'
-        )
+    for i in ticks(lo, hi):
+        out.append(f'<text x="{px(i):.1f}" y="{height - 6}" text-anchor="middle" class="axis">{i}</text>')
     for si, (name, pq) in enumerate(lines):
         ys = [None if not _ok(v) else base - plot_h * max(0.0, min(1.0, v)) for v in pq]
         out.append(
@@ -150,6 +147,16 @@ def frame_chart(
     out.append(f'<line class="cursor" x1="-10" x2="-10" y1="{top}" y2="{s_base}"/>')
     out.append("</svg>")
     return "".join(out)
+
+
+def ticks(lo: int, hi: int, most: int = 8) -> list[int]:
+    """Integer ticks at a round step (1, 2 or 5 × 10^k) covering ``[lo, hi]``, at most ``most``."""
+    span = max(hi - lo, 1)
+    step = 1
+    while span / step > most - 1:
+        step = step * 5 // 2 if str(step)[0] == "2" else step * 2  # 1, 2, 5, 10, 20, 50, ...
+    first = -(-lo // step) * step
+    return list(range(first, hi + 1, step))
 
 
 def _short(v: float) -> str:

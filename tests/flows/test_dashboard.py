@@ -153,3 +153,12 @@ def test_dashboard_command(runs, tmp_path):
         cli("dashboard", str(tmp_path), "--out", str(out)), cwd=REPO, env=env, capture_output=True, text=True
     )
     assert res.returncode == 2 and "no score report here" in res.stderr
+
+
+def test_frame_axis_ticks_are_round_numbers():
+    from flows.dashboard.svg import ticks
+
+    assert ticks(0, 3999) == [0, 1000, 2000, 3000]
+    assert ticks(0, 5) == [0, 1, 2, 3, 4, 5]
+    assert ticks(3, 120) == [20, 40, 60, 80, 100, 120]
+    assert ticks(7, 7) == [7]

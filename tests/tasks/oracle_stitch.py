@@ -15,15 +15,22 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
+from dsnet_core.labels import load_label_map
 from storage.contract import CONTRACTS, ArraySpec, StageContract, TableSpec
 from tasks import registry
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 from tasks.score import ScoreStage
 
-TRACKS = TableSpec(
+TRACKS = TableSpec(  # the columns of the real track table that the review queue reads
     "tracks",
     pa.schema(
-        [("id", pa.int64()), ("class", pa.string()), ("points", pa.int64()), ("confidence", pa.float64())]
+        [
+            ("id", pa.int32()),
+            ("class_id", pa.int32()),
+            ("first_frame", pa.int32()),
+            ("n_points", pa.int64()),
+            ("confidence", pa.float64()),
+        ]
     ),
 )
 CONTRACT = StageContract(
@@ -70,11 +77,13 @@ class OracleStitch(Stage):
         for i in items:
             pred = perturb(reader.labels(refs[i]), i, ctx.config.noise, ctx.config.seed)
             inst = pred >> 16
+            train = load_label_map("semantic-kitti").learning_map
             tracks = [
                 {
                     "id": int(t),
-                    "class": str(int(pred[inst == t][0] & 0xFFFF)),
-                    "points": int((inst == t).sum()),
+                    "class_id": train[int(pred[inst == t][0] & 0xFFFF)],
+                    "first_frame": i,
+                    "n_points": int((inst == t).sum()),
                     "confidence": round(0.2 + 0.8 * ((int(t) * 37 + i) % 100) / 100, 3),
                 }
                 for t in np.unique(inst[inst > 0])

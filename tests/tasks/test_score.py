@@ -119,6 +119,11 @@ def test_timings_pictures_and_review_queue(scored):
     tracks = ds.dataset(store.root.path("tables/tracks"), partitioning=HIVE).to_table().to_pylist()
     assert [r["confidence"] for r in review] == sorted(t["confidence"] for t in tracks)[:5]
     assert all(r["source"] == "stitch/tracks" for r in review)
+    first = next(
+        t for t in tracks if t["confidence"] == review[0]["confidence"] and t["id"] == review[0]["instance"]
+    )
+    assert review[0]["item"] == first["first_frame"] and review[0]["points"] == first["n_points"]
+    assert review[0]["class"] == load_label_map("semantic-kitti").class_names[first["class_id"]]
 
 
 def test_readme_queries(scored):

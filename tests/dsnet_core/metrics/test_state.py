@@ -7,7 +7,7 @@ import pytest
 
 from dsnet_core.metrics.evaluator import PanopticEvaluator
 from dsnet_core.metrics.state import evaluator_state, restore_evaluator, state_from_bytes, state_to_bytes
-from tests.dsnet_core.metrics.conftest import raw_frame
+from tests.dsnet_core.metrics.frames import raw_frame
 
 
 @pytest.mark.parametrize("mode", ["official", "corrected"])
@@ -23,8 +23,10 @@ def test_saved_parts_merge_to_one_pass(kitti, mode):
     for part in parts:
         restored = restore_evaluator(kitti, state_from_bytes(state_to_bytes(evaluator_state(part))))
         assert restored.result() == part.result()
+        assert restored.result_by_sequence() == part.result_by_sequence()
         total.merge(restored)
     assert total.result() == one.result()
+    assert total.result_by_sequence() == one.result_by_sequence()
     assert total.frames == 6 and total.result().lstq.n_tubes > 0
 
 

@@ -23,8 +23,19 @@ from tasks.registry import STAGES, stage_order
 from tasks.runner import make_context, resolved_config, stage_state
 
 
-def pending_sequences(data: str, root: str, stages: dict[str, dict] | None = None) -> list[str]:
-    """Sequences of the log at ``data`` that the store at ``root`` lacks or holds stale."""
+def pipeline(until: str | None = None) -> list[str]:
+    """The stages a tick runs: all, or up to ``until``."""
+    order = stage_order()
+    if until is not None and until not in order:
+        raise ValueError(f"unknown stage {until!r}; stages are {order}")
+    return order if until is None else order[: order.index(until) + 1]
+
+
+def pending_sequences(
+    data: str, root: str, stages: dict[str, dict] | None = None, until: str | None = None
+) -> list[str]:
+    """Sequences of the log at ``data`` that the store at ``root`` lacks or holds stale (in the
+    stages up to ``until``)."""
     from dsnet_core.io.semantickitti import SemanticKittiReader
 
     store = RunStore(root)
@@ -38,7 +49,7 @@ def pending_sequences(data: str, root: str, stages: dict[str, dict] | None = Non
         ingest = STAGES["ingest"]
         ctx = make_context(store, seq, "ingest", run)
         fp = fingerprint("ingest", ingest.version, resolved_config("ingest", run), {}, ingest.inputs(ctx))
-        if fp != m.fingerprint or any(stage_state(store, seq, s, run)[0] != "done" for s in stage_order()):
+        if fp != m.fingerprint or any(stage_state(store, seq, s, run)[0] != "done" for s in pipeline(until)):
             out.append(seq)
     return out
 
@@ -50,13 +61,15 @@ def auto_label(
     stages: dict[str, dict] | None = None,
     options: dict[str, Any] | None = None,
     dataset: str | None = None,
+    until: str | None = None,
 ) -> dict[str, Any]:
-    """One tick: label new or stale sequences of ``data`` into the store ``runs``, score, publish."""
+    """One tick: label new or stale sequences of ``data`` into the store ``runs`` (every stage, or
+    up to ``until``), score, publish."""
     logger = get_run_logger()
     name = dataset or posixpath.basename(str(data).rstrip("/"))
-    pending = pending_sequences(data, runs, stages)
+    pending = pending_sequences(data, runs, stages, until)
     logger.info("%d sequence(s) new or stale in %s: %s", len(pending), data, pending)
-    summary = label(data, runs, pending, stages, options) if pending else []
+    summary = label(data, runs, pending, stages, options, until=until) if pending else []
     try:
         published = publish(runs, name)
     except StoreError as exc:  # an empty store (nothing ever labelled)
@@ -68,7 +81,7 @@ def auto_label(
         f"Watched log: `{data}` · run store: `{runs}`",
         "",
         f"Labelled {len(pending)} sequence(s): {', '.join(pending) or 'none (everything up to date)'}",
-        f"Stages: {', '.join(stage_order())}",
+        f"Stages: {', '.join(pipeline(until))}",
         "",
     ]
     if published["scored"]:
@@ -84,13 +97,27 @@ def auto_label(
     return {"labelled": pending, "failed": failed, **published}
 
 
-def serve(data: str, runs: str, cron: str, name: str | None = None, stages: dict | None = None) -> None:
+def serve(
+    data: str,
+    runs: str,
+    cron: str,
+    name: str | None = None,
+    stages: dict | None = None,
+    until: str | None = None,
+) -> None:
     """Serve ``auto-label`` as a deployment with a cron schedule (blocks; needs a Prefect server)."""
     dataset = name or posixpath.basename(str(data).rstrip("/"))
+    pipeline(until)  # an unknown stage fails here, not at the first tick
     auto_label.serve(
         name=f"auto-label-{dataset_key(dataset)}",
         cron=cron,
-        parameters={"data": str(data), "runs": str(runs), "stages": stages or {}, "dataset": dataset},
+        parameters={
+            "data": str(data),
+            "runs": str(runs),
+            "stages": stages or {},
+            "dataset": dataset,
+            "until": until,
+        },
         description=f"Label new or stale sequences of {data} into {runs}, score, refresh the dashboard.",
         print_starting_message=False,
     )

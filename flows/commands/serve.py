@@ -18,6 +18,8 @@ def serve(
         None, help="Dataset name (artifact keys, deployment name); default: the log's folder."
     ),
     scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
+    checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled model)."),
+    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
 ) -> None:
     """Serve a Prefect deployment that labels, scores and publishes new or stale sequences on a schedule.
 
@@ -36,5 +38,10 @@ def serve(
         raise typer.Exit(code=2)
     from flows.watch import serve as serve_deployment
 
+    stages = {"align": {"scans": scans}, **({"infer": {"checkpoint": checkpoint}} if checkpoint else {})}
     typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
-    serve_deployment(str(watch.resolve()), runs, cron, name, {"align": {"scans": scans}})
+    try:
+        serve_deployment(str(watch.resolve()), runs, cron, name, stages, until)
+    except ValueError as exc:
+        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+        raise typer.Exit(code=2) from None

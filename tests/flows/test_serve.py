@@ -70,6 +70,7 @@ def test_served_deployment_labels_new_sequences_when_triggered(prefect_api_url, 
     runs = tmp_path / "runs"
     env = {**cli_env, "PREFECT_RUNNER_POLL_FREQUENCY": "1"}
     args = ("serve", "--watch", str(synth_log), "--runs", str(runs), "--cron", "0 3 * * *", "--name", "synth")
+    args += ("--until", "align")  # infer needs a trained checkpoint
     proc = subprocess.Popen(cli(*args), cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         dep = _wait_deployment("auto-label/auto-label-synth", proc)

@@ -43,7 +43,7 @@ class ScoreReport:
 def sequence_evaluator(store: RunStore, sequence: str) -> PanopticEvaluator | None:
     """The merged accumulators of one sequence's finished score stage (None if not scored)."""
     m = store.read_manifest(sequence, "score")
-    if m is None or m.status != "done":
+    if m is None or m.status != "done" or m.n_items == 0:  # not scored, or no ground truth
         return None
     config = ScoreConfig.model_validate(m.config)
     ev = make_evaluator(config)

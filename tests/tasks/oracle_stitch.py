@@ -75,7 +75,10 @@ class OracleStitch(Stage):
         reader = ctx.reader
         refs = reader.frames(ctx.sequence)
         for i in items:
-            pred = perturb(reader.labels(refs[i]), i, ctx.config.noise, ctx.config.seed)
+            gt = reader.labels(refs[i])
+            if gt is None:  # a log without ground truth: predict "unlabeled" everywhere
+                gt = np.zeros(reader.scan(refs[i]).shape[0], dtype=np.uint32)
+            pred = perturb(gt, i, ctx.config.noise, ctx.config.seed)
             inst = pred >> 16
             train = load_label_map("semantic-kitti").learning_map
             tracks = [

@@ -175,3 +175,20 @@ def test_corrected_mode_is_recorded_and_refingerprints(oracle_stages, synth_log,
     ref = _one_pass(synth_log, mode="corrected").result()
     assert run["mode"] == "corrected" and run["lstq"] == ref.lstq.lstq and run["pq"] == ref.panoptic.pq
     assert read_report_table(store, "score_bev").num_rows == 0
+
+
+def test_a_log_without_ground_truth_scores_nothing(oracle_stages, tmp_path):
+    import shutil
+
+    from tests.logs import make_log
+
+    log = make_log(tmp_path / "log", ("00",), n_frames=3)
+    shutil.rmtree(log / "sequences/00/labels")
+    store = RunStore(tmp_path / "run")
+    run = {"data": str(log), "stages": {}, "options": {"block_size": 2}}
+    store.write_run_config("r1", run)
+    for stage in ("ingest", "stitch", "score"):
+        m = run_stage_plain(store, "00", stage, run, "r1")
+    assert m.status == "done" and m.n_items == 0
+    assert store.read_table("00", "score", "frame_metrics").num_rows == 0
+    assert write_report(store) is None

@@ -14,6 +14,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -71,19 +72,18 @@ def config_hash(run: dict[str, Any]) -> str:
 
 
 def model_card_id(store: RunStore, sequences: list[str], run: dict[str, Any]) -> str:
-    """The model card id: the infer manifest's plan (``model_card``/``card_id``), else the infer config's
-    ``checkpoint``/``model``; "" when the run has no model."""
-    for seq in sequences:
-        m = store.read_manifest(seq, "infer")
-        if m is not None:
-            for key in ("model_card", "card_id", "model_id"):
-                if m.plan.get(key):
-                    return str(m.plan[key])
-    infer = run.get("stages", {}).get("infer", {}) or {}
-    for key in ("model_card", "checkpoint", "model"):
-        if infer.get(key):
-            return str(infer[key])
-    return ""
+    """The model card id ``<checkpoint folder>@<weights sha256[:12]>`` of the run's infer stage
+    (its ``checkpoint``, else the bundled model), from the card's JSON; "" when there is no model."""
+    if not any(store.read_manifest(seq, "infer") is not None for seq in sequences):
+        return ""
+    folder = (run.get("stages", {}).get("infer") or {}).get("checkpoint")
+    # the bundled model's folder (dsnet_core.model.bundle.bundled_dir, which imports torch)
+    path = Path(folder) if folder else Path(__file__).resolve().parents[1] / "dsnet_core/data/models/tiny"
+    try:
+        card = json.loads((path / "card.json").read_text())
+    except (OSError, ValueError):
+        return str(folder or "")
+    return f"{path.name}@{str(card.get('weights_sha256', ''))[:12]}"
 
 
 def write_report(store: RunStore, bev_frames: int = 6, review_rows: int = 50) -> ScoreReport | None:

@@ -192,3 +192,23 @@ def test_a_log_without_ground_truth_scores_nothing(oracle_stages, tmp_path):
     assert m.status == "done" and m.n_items == 0
     assert store.read_table("00", "score", "frame_metrics").num_rows == 0
     assert write_report(store) is None
+
+
+def test_model_card_id_names_the_checkpoint_and_its_weights(tmp_path):
+    import json
+
+    from storage.manifest import Manifest
+    from tasks.score_report import model_card_id
+
+    store = RunStore(tmp_path / "run")
+    ckpt = tmp_path / "tiny-v2"
+    ckpt.mkdir()
+    (ckpt / "card.json").write_text(json.dumps({"weights_sha256": "ab" * 32}))
+    run = {"stages": {"infer": {"checkpoint": str(ckpt)}}}
+    assert model_card_id(store, ["00"], run) == ""  # no infer stage ran
+    m = Manifest(
+        stage="infer", sequence="00", fingerprint="f", status="done", code_version="1", config={},
+        upstream={}, inputs="", run_id="r1",
+    )  # fmt: skip
+    store.write_manifest(m)
+    assert model_card_id(store, ["00"], run) == "tiny-v2@" + "ab" * 6

@@ -86,7 +86,7 @@ def model_card_id(store: RunStore, sequences: list[str], run: dict[str, Any]) ->
     return f"{path.name}@{str(card.get('weights_sha256', ''))[:12]}"
 
 
-def write_report(store: RunStore, bev_frames: int = 6, review_rows: int = 50) -> ScoreReport | None:
+def write_report(store: RunStore, bev_frames: int = 6, review_rows: int = 30) -> ScoreReport | None:
     """Merge the scored sequences and write the report tables. Returns None when nothing is scored."""
     run = store.read_run_config()
     sequences = sorted(store.sequences())

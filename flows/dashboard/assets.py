@@ -44,6 +44,7 @@ svg .cursor { stroke:#1d2330; stroke-width:1; stroke-dasharray:3 3; }
 .bev .pair { display:flex; gap:4px; }
 .bev img { width:240px; height:240px; image-rendering:pixelated; border-radius:4px; }
 .note { color:var(--muted); font-size:12px; margin:2px 0 6px; }
+.scroll { max-height:430px; overflow:auto; display:inline-block; border-bottom:1px solid var(--line); }
 """
 
 JS = """

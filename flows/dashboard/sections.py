@@ -303,7 +303,8 @@ def review(runs: list[RunTables]) -> str:
                 + "</tr>"
             )
         table = (
-            f"<table class='num' id='review-{r}'>{_head(cols)}<tbody>{''.join(body)}</tbody></table>"
+            f"<div class='scroll'><table class='num' id='review-{r}'>{_head(cols)}"
+            f"<tbody>{''.join(body)}</tbody></table></div>"
             if body
             else "<p class='note'>no instance table with confidences in this run</p>"
         )

@@ -72,7 +72,9 @@ from flows.commands import demo as _demo  # noqa: E402
 from flows.commands import export as _export  # noqa: E402
 from flows.commands import label as _label  # noqa: E402
 from flows.commands import synth as _synth  # noqa: E402
+from flows.commands.dashboard import dashboard as _dashboard  # noqa: E402
 from flows.commands.eval import eval_command  # noqa: E402
+from flows.commands.serve import serve as _serve  # noqa: E402
 from flows.commands.train import train as _train  # noqa: E402
 
 app.command()(_synth.synth)
@@ -82,6 +84,8 @@ app.command("label")(_label.label)
 app.command("status")(_label.status)
 app.command(name="train")(_train)
 app.command("export")(_export.export)
+app.command("dashboard")(_dashboard)
+app.command("serve")(_serve)
 
 
 def main() -> None:

@@ -193,6 +193,10 @@ def label(
         summary.append({"sequence": seq, "stage": "-", "action": "failed", "error": err})
     _report(run_id, summary)
     store.update_run_record(run_id, finished=time.time(), summary=summary)
+    if "score" in order:  # report tables, dashboard and score artifacts (flows/publish.py)
+        from flows.publish import publish
+
+        publish(root, str(data).rstrip("/").rsplit("/", 1)[-1], storage_options=storage_options)
     return summary
 
 

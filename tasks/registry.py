@@ -7,11 +7,21 @@ from tasks.base import Stage
 from tasks.fuse import FuseStage
 from tasks.infer import InferStage
 from tasks.ingest import IngestStage
+from tasks.score import ScoreStage
 from tasks.shift import ShiftStage
 from tasks.stitch import StitchStage
 
 STAGES: dict[str, Stage] = {
-    s.name: s for s in (IngestStage(), AlignStage(), InferStage(), ShiftStage(), FuseStage(), StitchStage())
+    s.name: s
+    for s in (
+        IngestStage(),
+        AlignStage(),
+        InferStage(),
+        ShiftStage(),
+        FuseStage(),
+        StitchStage(),
+        ScoreStage(),
+    )
 }
 
 

@@ -18,7 +18,7 @@ from tests.model_helpers import make_checkpoint
 
 LM = load_label_map("semantic-kitti")
 MODEL = ("infer", "shift", "fuse", "stitch")
-ALL = ("ingest", "align", *MODEL)
+ALL = ("ingest", "align", *MODEL, "score")
 SEQS = ("00", "01")
 FAST_SHIFT = {"kind": "dynamic_shift", "n_seeds": 300, "bandwidths": [0.2, 1.8, 3.4]}
 
@@ -90,7 +90,7 @@ def test_label_4d_reruns_and_reprocesses_only_what_changed(run4d, synth_log, ckp
 
     dbscan = label_dataset(str(synth_log), str(root), ["00"], stages(ckpt, 2, {"kind": "dbscan"}), {})
     acts = actions(dbscan)
-    assert [acts[("00", st)] for st in ALL] == ["skip"] * 3 + ["fresh"] * 3
+    assert [acts[("00", st)] for st in ALL] == ["skip"] * 3 + ["fresh"] * 4
     assert not all(np.array_equal(a, b) for a, b in zip(frame_labels(store, "00"), labels["00"], strict=True))
     fp01 = RunStore(src).read_manifest("01", "shift").fingerprint
     assert store.read_manifest("01", "shift").fingerprint == fp01  # the other sequence is untouched
@@ -99,7 +99,7 @@ def test_label_4d_reruns_and_reprocesses_only_what_changed(run4d, synth_log, ckp
     other = make_checkpoint(tmp_path / "other", seed=1)
     new_model = label_dataset(str(synth_log), str(root), ["00"], stages(other, 2, {"kind": "dbscan"}), {})
     acts = actions(new_model)
-    assert [acts[("00", st)] for st in ALL] == ["skip"] * 2 + ["fresh"] * 4
+    assert [acts[("00", st)] for st in ALL] == ["skip"] * 2 + ["fresh"] * 5
 
 
 def test_label_3d_ids_from_one_counter_export_and_eval(prefect_api_url, synth_log, ckpt, tmp_path):
@@ -191,7 +191,7 @@ def test_4d_run_killed_during_stitch_resumes_to_identical_labels(run4d, synth_lo
 
     resumed = label_dataset(str(synth_log), str(root), ["00"], stages(ckpt, 2), {})
     acts = actions(resumed)
-    assert acts[("00", "stitch")] == "resume" and all(acts[("00", s)] == "skip" for s in ALL[:-1])
+    assert acts[("00", "stitch")] == "resume" and all(acts[("00", s)] == "skip" for s in ALL[:-2])
     m = store.read_manifest("00", "stitch")
     assert m.status == "done" and m.counts["resumed_frames"] == 3 and m.counts["frames"] == 6
     assert not store.root.exists("sequences/00/stitch/state.json")

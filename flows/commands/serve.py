@@ -1,0 +1,47 @@
+"""``dsnet serve``: the scheduled auto-labelling deployment."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import typer
+
+
+def serve(
+    watch: Path = typer.Option(
+        ..., "--watch", help="Log root to watch (SemanticKITTI layout, holds sequences/)."
+    ),
+    runs: str = typer.Option(..., "--runs", help="Run store root the labels and scores go to."),
+    cron: str = typer.Option("0 * * * *", "--cron", help="When to look for new or stale sequences (cron)."),
+    name: str = typer.Option(
+        None, help="Dataset name (artifact keys, deployment name); default: the log's folder."
+    ),
+    scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
+    checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled model)."),
+    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
+) -> None:
+    """Serve a Prefect deployment that labels, scores and publishes new or stale sequences on a schedule.
+
+    Needs a Prefect server: `prefect server start --host 127.0.0.1` and PREFECT_API_URL pointing at it.
+    """
+    from flows.server import quiet_prefect_env
+
+    quiet_prefect_env()
+    if not os.environ.get("PREFECT_API_URL"):
+        typer.secho(
+            "error: schedules need a Prefect server: run `prefect server start --host 127.0.0.1` and "
+            "export PREFECT_API_URL=http://127.0.0.1:4200/api",
+            fg=typer.colors.RED,
+            err=True,
+        )
+        raise typer.Exit(code=2)
+    from flows.watch import serve as serve_deployment
+
+    stages = {"align": {"scans": scans}, **({"infer": {"checkpoint": checkpoint}} if checkpoint else {})}
+    typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
+    try:
+        serve_deployment(str(watch.resolve()), runs, cron, name, stages, until)
+    except ValueError as exc:
+        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+        raise typer.Exit(code=2) from None

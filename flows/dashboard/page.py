@@ -1,0 +1,66 @@
+"""Assemble the dashboard page from its sections; write it to a file."""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+from . import sections
+from .assets import CSS, JS
+from .data import RunTables, load_run
+from .fmt import esc
+
+log = logging.getLogger(__name__)
+
+SECTIONS = (
+    ("s-headline", "Headline", sections.headline),
+    ("s-classes", "Classes", sections.classes),
+    ("s-sequences", "Sequences", sections.sequences),
+    ("s-frames", "Frames", sections.frames),
+    ("s-timings", "Timings", sections.timings),
+    ("s-worst", "Worst frames", sections.worst_frames),
+    ("s-review", "Review queue", sections.review),
+)
+
+
+def render_dashboard(runs: list[RunTables], title: str = "dsnet evaluation") -> str:
+    """The whole page as one HTML string (self-contained: no external requests)."""
+    if not runs:
+        raise ValueError("render_dashboard needs at least one run")
+    nav = "".join(f'<a href="#{sid}">{name}</a>' for sid, name, _ in SECTIONS)
+    body = "".join(fn(runs) for _, _, fn in SECTIONS)
+    roots = " · ".join(f"{esc(r.label)} = {esc(r.root)}" for r in runs)
+    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    return (
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        "<meta http-equiv='Content-Security-Policy' content=\"default-src 'none'; img-src data:; "
+        "style-src 'unsafe-inline'; script-src 'unsafe-inline'\">"
+        f"<title>{esc(title)}</title><style>{CSS}</style></head><body>"
+        f"<header><h1>{esc(title)}</h1><div class='sub'>{roots} · built {stamp}</div></header>"
+        f"<nav>{nav}</nav><main>{body}</main><script>{JS}</script></body></html>"
+    )
+
+
+def build_dashboard(
+    roots: list[str], out: str | Path, title: str = "dsnet evaluation", storage_options: dict | None = None
+) -> Path:
+    """Read the score report tables of each run root and write the dashboard to ``out``.
+
+    Args:
+        roots: run store URIs; the first is the baseline "A" that deltas refer to.
+        out: HTML file to write (parent folders are created).
+
+    Returns:
+        The written file's path.
+    """
+    runs = [load_run(root, chr(ord("A") + i), storage_options) for i, root in enumerate(roots)]
+    page = render_dashboard(runs, title)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    tmp.write_text(page, encoding="utf-8")
+    tmp.replace(out)
+    log.info("dashboard of %d run(s) written to %s", len(runs), out)
+    return out

@@ -1,0 +1,108 @@
+"""After labelling: the score report, the dashboard and the Prefect artifacts of a run store.
+
+``publish(root, dataset)`` writes the report tables (merged accumulators), the dashboard
+(``ROOT/dashboard.html``) and, inside a flow run, two artifacts with stable keys so the Prefect UI
+shows the latest per dataset: ``score-summary-<dataset>`` (markdown: headline numbers, the
+dashboard's location) and ``score-classes-<dataset>`` (table: per-class PQ/SQ/RQ/IoU).
+The labelling flow's own progress and summary artifacts stay as they are.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from flows.dashboard import build_dashboard
+from storage.run import RunStore
+from tasks.score_report import ScoreReport, write_report
+
+log = logging.getLogger(__name__)
+DASHBOARD = "dashboard.html"
+
+
+def dataset_key(name: str) -> str:
+    """An artifact key part: lowercase letters, digits, dashes (``KITTI_odo/v2`` -> ``kitti-odo-v2``)."""
+    key = re.sub(r"[^a-z0-9]+", "-", str(name).lower()).strip("-")
+    return key or "dataset"
+
+
+def write_dashboard(store: RunStore, others: list[str] | None = None) -> str:
+    """Build the dashboard of this run (plus ``others`` side by side) into ``ROOT/dashboard.html``."""
+    if store.root.local:
+        return str(build_dashboard([store.uri, *(others or [])], Path(store.root.path(DASHBOARD))))
+    with tempfile.TemporaryDirectory() as tmp:
+        page = build_dashboard([store.uri, *(others or [])], Path(tmp) / DASHBOARD, storage_options=None)
+        store.root.write_bytes(DASHBOARD, page.read_bytes())
+    return store.root.url(DASHBOARD)
+
+
+def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
+    """The markdown summary: headline numbers, scoring mode, model, the dashboard's location."""
+    r = report.run
+
+    def pct(key: str) -> str:
+        v = r.get(key)
+        return "–" if v is None else f"{100 * v:.1f}"
+
+    lines = [
+        f"# Scores · {dataset}",
+        "",
+        f"**PQ {pct('pq')}** · PQ† {pct('pq_dagger')} · SQ {pct('sq')} · RQ {pct('rq')} · "
+        f"mIoU {pct('miou')} · **LSTQ {pct('lstq')}** (S_assoc {pct('s_assoc')}, S_cls {pct('s_cls')})",
+        "",
+        "| | PQ | SQ | RQ |",
+        "|---|---|---|---|",
+        f"| things | {pct('pq_things')} | {pct('sq_things')} | {pct('rq_things')} |",
+        f"| stuff | {pct('pq_stuff')} | {pct('sq_stuff')} | {pct('rq_stuff')} |",
+        "",
+        f"{r['sequences']} sequences, {r['frames']} frames, {r['points']} points · scoring mode "
+        f"`{r['mode']}` · model `{r['model_card'] or '-'}` · config `{r['config_hash']}` · "
+        f"run `{r['run_id']}`",
+        "",
+        f"Dashboard: `{dashboard}`",
+        "",
+        f"Run store: `{r['root']}`",
+    ]
+    return "\n".join(lines)
+
+
+def class_table(report: ScoreReport) -> list[dict[str, Any]]:
+    """Per-class rows for the table artifact (percentages, one decimal)."""
+    return [
+        {
+            "class": c["class"],
+            "kind": c["kind"],
+            **{k.upper() if k != "iou" else "IoU": round(100 * c[k], 1) for k in ("pq", "sq", "rq", "iou")},
+            "tp": c["tp"],
+            "fp": c["fp"],
+            "fn": c["fn"],
+        }
+        for c in report.classes
+    ]
+
+
+def publish(root: str, dataset: str, artifacts: bool = True, storage_options: dict | None = None) -> dict:
+    """Report tables, dashboard and (in a flow run) artifacts for one run store.
+
+    Returns:
+        ``{"scored": bool, "dashboard": location or None, "headline": {...}}``.
+    """
+    store = RunStore(root, storage_options)
+    report = write_report(store)
+    if report is None:
+        log.info("nothing scored in %s (no ground truth, or no score stage yet)", store.uri)
+        return {"scored": False, "dashboard": None, "headline": {}}
+    dashboard = write_dashboard(store)
+    if artifacts:
+        from prefect.artifacts import create_markdown_artifact, create_table_artifact
+
+        key = dataset_key(dataset)
+        create_markdown_artifact(
+            summary_markdown(report, dataset, dashboard), key=f"score-summary-{key}", description=dataset
+        )
+        create_table_artifact(class_table(report), key=f"score-classes-{key}", description=dataset)
+    headline = {k: report.run[k] for k in ("pq", "sq", "rq", "miou", "lstq", "mode", "frames")}
+    return {"scored": True, "dashboard": dashboard, "headline": headline}

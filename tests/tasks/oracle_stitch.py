@@ -1,0 +1,132 @@
+"""A stand-in ``stitch`` stage for scoring tests: perturbed ground truth through the real store.
+
+It writes the stitch contract the score stage reads (item = frame, per-point ``label`` uint32 in
+the scan's point order) and a ``tracks`` table with a confidence per instance, through the real
+runner (zarr arrays, block fragments, parquet, manifests). The perturbation is deterministic:
+per frame a seeded share of points gets another class, and in odd frames one instance is split
+in two ids.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from dsnet_core.labels import load_label_map
+from storage.contract import CONTRACTS, ArraySpec, StageContract, TableSpec
+from tasks import registry
+from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.score import ScoreStage
+
+TRACKS = TableSpec(  # the columns of the real track table that the review queue reads
+    "tracks",
+    pa.schema(
+        [
+            ("id", pa.int32()),
+            ("class_id", pa.int32()),
+            ("first_frame", pa.int32()),
+            ("n_points", pa.int64()),
+            ("confidence", pa.float64()),
+        ]
+    ),
+)
+CONTRACT = StageContract(
+    "stitch",
+    item="frame",
+    arrays=(ArraySpec("label", "uint32", doc="raw semantic | instance << 16, scan point order"),),
+    tables=(TRACKS,),
+)
+
+
+class OracleStitchConfig(StageConfig):
+    noise: float = 0.05  # share of points given another class
+    seed: int = 0
+
+
+def perturb(labels: np.ndarray, index: int, noise: float, seed: int) -> np.ndarray:
+    """Ground truth ``(N,) uint32`` -> a deterministic perturbed prediction ``(N,) uint32``."""
+    rng = np.random.default_rng([seed, index])
+    out = labels.astype(np.uint32).copy()
+    flip = rng.random(out.size) < noise
+    out[flip] = (out[flip] & 0xFFFF0000) | np.uint32(40)  # -> road
+    inst = out >> 16
+    ids = np.unique(inst[inst > 0])
+    if index % 2 and ids.size:
+        sel = np.flatnonzero(inst == ids[0])
+        half = sel[: sel.size // 2]
+        out[half] = (out[half] & 0xFFFF) | np.uint32((int(ids[0]) + 500) << 16)
+    return out
+
+
+class OracleStitch(Stage):
+    name = "stitch"
+    upstream = ("ingest",)
+    version = "oracle-1"
+    Config = OracleStitchConfig
+
+    def plan(self, ctx: StageContext) -> Plan:
+        n = ctx.frames["n_points"].to_pylist()
+        return Plan(n_items=len(n), max_points=max(n, default=0))
+
+    def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
+        reader = ctx.reader
+        refs = reader.frames(ctx.sequence)
+        for i in items:
+            gt = reader.labels(refs[i])
+            if gt is None:  # a log without ground truth: predict "unlabeled" everywhere
+                gt = np.zeros(reader.scan(refs[i]).shape[0], dtype=np.uint32)
+            pred = perturb(gt, i, ctx.config.noise, ctx.config.seed)
+            inst = pred >> 16
+            train = load_label_map("semantic-kitti").learning_map
+            tracks = [
+                {
+                    "id": int(t),
+                    "class_id": train[int(pred[inst == t][0] & 0xFFFF)],
+                    "first_frame": i,
+                    "n_points": int((inst == t).sum()),
+                    "confidence": round(0.2 + 0.8 * ((int(t) * 37 + i) % 100) / 100, 3),
+                }
+                for t in np.unique(inst[inst > 0])
+            ]
+            yield ItemResult(
+                i,
+                arrays={"label": pred},
+                n_points=int(pred.size),
+                rows={"tracks": tracks},
+                counts={"frames": 1, "points": int(pred.size)},
+            )
+
+
+def install(monkeypatch: pytest.MonkeyPatch) -> dict:
+    """Register the stand-in stitch stage (and score after it) until ``monkeypatch`` undoes it."""
+    monkeypatch.setitem(CONTRACTS, "stitch", CONTRACT)
+    monkeypatch.setitem(registry.STAGES, "stitch", OracleStitch())
+    monkeypatch.setitem(registry.STAGES, "score", ScoreStage())
+    return registry.STAGES
+
+
+def score_runs(root, log, runs: dict[str, float], sequences=("00", "01"), block_size: int = 4, bev: int = 3):
+    """Label (oracle stitch with the given noise) and score one run store per entry of ``runs``
+    (``{name: noise}``) under ``root``; returns their URIs. Call with :func:`install` in effect."""
+    from storage.run import RunStore
+    from tasks.runner import run_stage_plain
+    from tasks.score_report import write_report
+
+    out = []
+    for name, noise in runs.items():
+        store = RunStore(root / name)
+        run = {
+            "data": str(log),
+            "stages": {"stitch": {"noise": noise}},
+            "options": {"block_size": block_size},
+        }
+        store.write_run_config(name, run)
+        for seq in sequences:
+            for stage in ("ingest", "stitch", "score"):
+                run_stage_plain(store, seq, stage, run, name)
+        write_report(store, bev_frames=bev, review_rows=8)
+        out.append(store.uri)
+    return out

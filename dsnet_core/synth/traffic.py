@@ -73,7 +73,9 @@ class Actors:
 
 @dataclass
 class Traffic:
-    """Builds the things of a street; call the ``add_*`` methods, then :meth:`static` and :meth:`actors`."""
+    """Builds the things of a street: :meth:`park` and :meth:`drive` place one (lanes and footprints
+    keep them apart), :meth:`fill_lane`, :meth:`park_street` and :meth:`sidewalk_things` populate;
+    :meth:`static` and :meth:`actors` return the result."""
 
     rng: np.random.Generator
     road: Road

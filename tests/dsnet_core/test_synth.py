@@ -8,7 +8,7 @@ import pytest
 from dsnet_core.errors import ConfigError, SequenceLayoutError
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
-from dsnet_core.synth import SENSORS, generate_log, get_sensor, kitti_tr, plan_sequence
+from dsnet_core.synth import SENSORS, SynthConfig, generate_log, get_sensor, kitti_tr, plan_sequence
 from dsnet_core.synth.primitives import BOX, CYLINDER, ELLIPSOID
 from dsnet_core.synth.raycast import _intersect
 
@@ -138,6 +138,24 @@ def test_parked_objects_stay_put_and_moving_ones_move(hdl64_log):
         first = _to_world(scans[0][(labels[0] >> 16) == inst], poses[0]).mean(axis=0)
         last = _to_world(scans[-1][(labels[-1] >> 16) == inst], poses[-1]).mean(axis=0)
         assert np.linalg.norm(first - last) > 0.8, f"moving instance {inst} did not move"
+
+
+def test_config_knobs_change_the_world():
+    def moving(**kw):
+        things = plan_sequence(0, 0, 50, SynthConfig(**kw)).scene.things.values()
+        return (
+            sum(m for _, m in things),
+            sum(raw == 254 for raw, _ in things),
+            sum(raw == 10 for raw, _ in things),
+        )
+
+    base = moving()
+    assert moving(traffic=3.0)[0] > 1.5 * base[0]
+    assert moving(pedestrians=0.2)[1] < base[1]
+    assert moving(parked=0.1)[2] < base[2]
+    poses = plan_sequence(0, 0, 50, SynthConfig(ego_speed=(3.0, 3.0))).poses
+    step = np.linalg.norm(np.diff(poses[:, :2, 3], axis=0), axis=1)
+    assert 0.2 < step.min() and step.max() < 0.4, "3 m/s ± a 1 m/s surge at 10 Hz"
 
 
 def _footprints_overlap(a: np.ndarray, b: np.ndarray) -> bool:

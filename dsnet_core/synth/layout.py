@@ -93,24 +93,28 @@ class Street:
         lay = self.layout
         if lay.edges[side, 1, 0] - lay.edges[side, 0, 0] < 1.5:
             return []
-        raised = np.concatenate([[False], lay.classes[side, 0] != PARKING, [False]])
-        starts = np.flatnonzero(raised[1:] & ~raised[:-1])
-        ends = np.flatnonzero(~raised[1:] & raised[:-1])
-        return [
-            (lay.s0 + a * lay.ds, lay.s0 + b * lay.ds) for a, b in zip(starts, ends, strict=True)
-            if (b - a) * lay.ds >= min_length
-        ]  # fmt: skip
+        runs = _runs(lay.classes[side, 0] != PARKING)
+        return [(lay.s0 + a * lay.ds, lay.s0 + b * lay.ds) for a, b in runs if (b - a) * lay.ds >= min_length]
 
-    def ensure_parking(self, side: int, s0: float, s1: float) -> bool:
-        """Turn the kerbside strip of ``side`` over ``[s0, s1]`` into parking; False if it has none."""
+    def set_kerb(self, side: int, s0: float, s1: float, cls: int) -> bool:
+        """Make the kerbside strip of ``side`` over ``[s0, s1]`` parking or a raised bay (``cls``);
+        False if that side has no kerbside strip."""
         lay = self.layout
         if lay.edge(side, 1, s0) - lay.edge(side, 0, s0) < 1.5:
             return False
-        lay.classes[side, 0, lay.bin(s0) : lay.bin(s1) + 1] = PARKING
-        overlap = [(a, b) for sd, a, b in self.parking if sd == side and a <= s1 and b >= s0]
-        self.parking[:] = [p for p in self.parking if p[0] != side or p[1] > s1 or p[2] < s0]
-        self.parking.append((side, min([s0] + [a for a, _ in overlap]), max([s1] + [b for _, b in overlap])))
+        lay.classes[side, 0, lay.bin(s0) : lay.bin(s1) + 1] = cls
+        runs = _runs(lay.classes[side, 0] == PARKING)
+        self.parking[:] = [p for p in self.parking if p[0] != side]
+        self.parking.extend((side, lay.s0 + a * lay.ds, lay.s0 + b * lay.ds) for a, b in runs)
         return True
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``[start, end)`` index pairs of the True runs of a 1-D mask."""
+    padded = np.concatenate([[False], mask, [False]])
+    starts = np.flatnonzero(padded[1:] & ~padded[:-1])
+    ends = np.flatnonzero(~padded[1:] & padded[:-1])
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
 
 def make_layout(rng: np.random.Generator, s_lo: float, s_hi: float) -> Street:

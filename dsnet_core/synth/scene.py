@@ -13,7 +13,16 @@ import numpy as np
 from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.layout import SIDES, SIDEWALK_BAND, Occupancy, Street, StuffPlacer, make_layout
 from dsnet_core.synth.primitives import PrimitiveSet
-from dsnet_core.synth.road import LAWN_END, PARKING_END, ROAD_EDGE, SIDEWALK_END, GroundLayout, Road
+from dsnet_core.synth.road import (
+    LAWN_END,
+    PARKING,
+    PARKING_END,
+    ROAD_EDGE,
+    SIDEWALK,
+    SIDEWALK_END,
+    GroundLayout,
+    Road,
+)
 from dsnet_core.synth.traffic import (
     BICYCLE,
     BICYCLIST,
@@ -136,19 +145,33 @@ def _guaranteed(rng, traffic: Traffic, street: Street, ego_d, ego_speed, roads, 
     lay = street.layout
     right, left = 1, 0
     sw = lay.edge(right, SIDEWALK_END, 12.0)
-    sw_left = lay.edge(left, SIDEWALK_END, 12.0)
+    kerb = {side: (lay.edge(side, ROAD_EDGE, 0.0) + lay.edge(side, PARKING_END, 0.0)) / 2 for side in (0, 1)}
     s = rng.uniform(9.0, 12.0)
-    for _ in range(3):
-        traffic.park(BICYCLE, s, -(sw - 0.35), rng.normal(0, 0.1))
-        s += rng.uniform(2.0, 2.6)
+    if street.set_kerb(right, s - 1.0, s + 4.0, SIDEWALK):  # a bike rack on a bay by the road
+        for _ in range(3):
+            traffic.park(BICYCLE, s, -kerb[right], np.pi / 2 + rng.normal(0, 0.03))
+            s += rng.uniform(0.8, 1.0)
+    else:
+        for _ in range(3):
+            traffic.park(BICYCLE, s, -(sw - 0.35), rng.normal(0, 0.1))
+            s += rng.uniform(2.0, 2.6)
     traffic.park(PERSON, rng.uniform(17.0, 22.0), -(sw - 0.35), rng.uniform(0, 2 * np.pi))
-    traffic.park(MOTORCYCLE, rng.uniform(12.0, 18.0), sw_left - 0.45, np.pi + rng.normal(0, 0.05))
+    s = rng.uniform(15.0, 18.0)  # a motorcycle parked at the kerb, near side if it has a strip
+    for side in (right, left):
+        if street.set_kerb(side, s - 1.5, s + 1.5, PARKING):
+            traffic.park(
+                MOTORCYCLE, s, SIDES[side] * kerb[side], (0.0, np.pi)[side == left] + rng.normal(0, 0.05)
+            )
+            break
+    else:  # no kerbside strip: on the sidewalk, past the bikes and the person
+        traffic.park(MOTORCYCLE, s + 10.0, -(sw - 0.45), rng.normal(0, 0.05))
+    street.set_kerb(left, 20.0, 60.0, PARKING)  # a truck and a van parked across the road (if a strip)
     traffic.drive(BICYCLIST, rng.uniform(14.0, 22.0), *bikes[-1.0])
     traffic.drive(CAR, rng.uniform(22.0, 30.0), ego_d, ego_speed)
     opposite = min(d for d in roads if d > 0)
     s = rng.uniform(15.0, 25.0)
     unplaced = [TRUCK, OTHER_VEHICLE]
-    if street.ensure_parking(left, 20.0, 60.0):  # a delivery truck and a van parked across the road
+    if lay.classes[left, 0, lay.bin(30.0)] == PARKING:
         s_park = rng.uniform(22.0, 26.0)
         d = (lay.edge(left, ROAD_EDGE, s_park) + lay.edge(left, PARKING_END, s_park)) / 2
         for cls in [TRUCK, OTHER_VEHICLE]:

@@ -102,9 +102,6 @@ class Stage(ABC):
     upstream: ClassVar[tuple[str, ...]] = ()
     version: ClassVar[str]
     Config: ClassVar[type[StageConfig]] = StageConfig
-    #: the runner skips items of an interrupted block whose ``done`` flag is set; False for a stage
-    #: that resumes inside ``run_block`` itself (e.g. sequential state, as ``stitch``)
-    resume_items: ClassVar[bool] = True
 
     @property
     def contract(self) -> StageContract:

@@ -156,7 +156,7 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
             counts[key] = counts.get(key, 0) + n
 
     todo = list(job.items)
-    if arrays is not None and spec.resume_items:  # items of an interrupted block already done are kept
+    if arrays is not None:  # items of an interrupted block whose done flag is set are not recomputed
         kept = []
         for item, done in zip(job.items, arrays.done_items(job.items), strict=True):
             record = store.read_item_record(job.sequence, job.stage, item) if done else None
@@ -167,9 +167,8 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
         todo = kept
     for res in spec.run_block(ctx, todo):
         if arrays is not None:
-            if spec.resume_items:
-                record = {"fingerprint": job.fingerprint, "rows": res.rows, "counts": res.counts}
-                store.write_item_record(job.sequence, job.stage, res.index, record)  # before the done flag
+            record = {"fingerprint": job.fingerprint, "rows": res.rows, "counts": res.counts}
+            store.write_item_record(job.sequence, job.stage, res.index, record)  # before the done flag
             arrays.write_item(res.index, res.arrays, res.n_points)
         add(res.rows, res.counts)
     _check_lock(store, job)

@@ -54,7 +54,6 @@ class StitchStage(Stage):
     upstream = ("fuse", "align")
     version = "1"
     Config = StitchConfig
-    resume_items = False  # resumes from its own saved state inside the block
 
     def plan(self, ctx: StageContext) -> Plan:
         t = ctx.frames.to_pydict()

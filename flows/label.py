@@ -134,8 +134,11 @@ def label(
     progress_id = create_progress_artifact(0.0, key="label-progress", description=f"run {run_id}")
     total_stages = len(order)
     try:
-        for seq in sequences:  # fixed order: two runs cannot deadlock
-            for stage in order:
+        # every stage this run may write or clear (``until`` does not stop the clearing of downstream
+        # stages), in one fixed order so two runs cannot deadlock
+        lock_stages = [s for s in stage_order() if s in order or any(s in downstream_of(o) for o in order)]
+        for seq in sequences:
+            for stage in lock_stages:
                 locks.acquire(_lock_rel(store, seq, stage))
         for s_idx, stage in enumerate(order):
             t0 = time.perf_counter()

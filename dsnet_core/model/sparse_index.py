@@ -66,35 +66,52 @@ class Rulebook:
         return Rulebook([(o, i) for i, o in self.pairs], self.n_out, self.n_in, list(self.identity))
 
 
+def _split_rows(found: torch.Tensor, values: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """Per row of a ``(T, M)`` mask: (values[row, hits], column indices of the hits)."""
+    rows, cols = torch.nonzero(found, as_tuple=True)
+    counts = torch.bincount(rows, minlength=found.shape[0]).tolist()
+    return list(zip(values[rows, cols].split(counts), cols.split(counts), strict=True))
+
+
 def submanifold_rulebook(
     coords: torch.Tensor, shape: tuple[int, int, int], kernel: tuple[int, int, int]
 ) -> Rulebook:
     """Rulebook of a stride-1 submanifold convolution with padding ``k // 2`` (outputs = inputs).
+
+    All taps are looked up in one vectorised ``searchsorted``; tap ``-d`` reuses tap ``d``'s pairs
+    swapped (if ``p + d = q`` then ``q - d = p``), so only half the taps are searched.
 
     Args:
         coords: int64 ``(M, 4)`` active sites sorted by key.
         shape: spatial shape.
         kernel: odd kernel size per axis.
     """
-    m = coords.shape[0]
-    keys = coord_keys(coords, shape)
-    centre = torch.tensor([k // 2 for k in kernel], device=coords.device)
-    offs = kernel_offsets(kernel, coords.device) - centre
-    size = torch.tensor(shape, dtype=torch.int64, device=coords.device)
-    arange = torch.arange(m, dtype=torch.int64, device=coords.device)
-    pairs, identity = [], []
-    for d in offs:
-        if not bool(d.any()):
-            pairs.append((arange, arange))
-            identity.append(True)
-            continue
-        nb = coords[:, 1:] + d
-        ok = ((nb >= 0) & (nb < size)).all(dim=1)
-        nb_coords = torch.cat([coords[ok, :1], nb[ok]], dim=1)
-        idx = lookup(keys, coord_keys(nb_coords, shape))
-        found = idx >= 0
-        pairs.append((idx[found], arange[ok][found]))
-        identity.append(False)
+    m, dev = coords.shape[0], coords.device
+    centre = torch.tensor([k // 2 for k in kernel], device=dev)
+    offs = kernel_offsets(kernel, dev) - centre
+    n_taps = offs.shape[0]
+    half = n_taps // 2  # taps before the centre; tap n_taps-1-t is the mirror of tap t
+    arange = torch.arange(m, dtype=torch.int64, device=dev)
+    pairs: list = [None] * n_taps
+    identity = [False] * n_taps
+    pairs[half], identity[half] = (arange, arange), True
+    if half and m:
+        keys = coord_keys(coords, shape)
+        d = offs[:half]
+        stride = torch.tensor([shape[1] * shape[2], shape[2], 1], dtype=torch.int64, device=dev)
+        nb = coords[None, :, 1:] + d[:, None, :]
+        ok = ((nb >= 0) & (nb < torch.tensor(shape, device=dev))).all(dim=2)
+        query = keys[None, :] + (d * stride).sum(1)[:, None]
+        idx = lookup(keys, query.reshape(-1)).reshape(half, m)
+        found = ok & (idx >= 0)
+        for t, (nbr, site) in enumerate(_split_rows(found, idx)):
+            pairs[t] = (nbr, site)
+            pairs[n_taps - 1 - t] = (site, nbr)
+    elif half:
+        empty = arange[:0]
+        for t in range(n_taps):
+            if t != half:
+                pairs[t] = (empty, empty)
     return Rulebook(pairs, m, m, identity)
 
 

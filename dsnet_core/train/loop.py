@@ -20,6 +20,7 @@ import torch
 from dsnet_core.errors import ConfigError
 from dsnet_core.io.reader import LogReader
 from dsnet_core.labels import LabelMap
+from dsnet_core.model.bundle import load_shift_weights, save_shift_weights
 from dsnet_core.model.checkpoint import (
     CARD,
     ModelCard,
@@ -37,16 +38,14 @@ from dsnet_core.model.losses import (
 )
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
+from dsnet_core.shift_training import train_shift
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
 from dsnet_core.train.metrics import ConfusionMeter
+from dsnet_core.train.shift_stage import make_shift_module, seeds_per_volume, shift_error, shift_samples
 from dsnet_core.train.state import load_train_state, save_train_state
 
 log = logging.getLogger(__name__)
 STAGES = ("semantic", "offset", "shift")
-
-
-class StageUnavailableError(ConfigError):
-    """A training stage whose code is not available yet."""
 
 
 @dataclass
@@ -74,8 +73,8 @@ class TrainConfig:
     device: str = "cpu"
 
     def stages(self) -> list[str]:
-        if self.stage == "all":  # the shifting stage joins once its training is wired (issue 6)
-            return ["semantic", "offset"]
+        if self.stage == "all":
+            return list(STAGES)
         if self.stage not in STAGES:
             raise ConfigError(
                 f"unknown training stage '{self.stage}' (choose semantic, offset, shift or all)"
@@ -113,11 +112,6 @@ class Trainer:
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), config, label_map
         self.stages = config.stages()
-        if "shift" in self.stages:
-            raise StageUnavailableError(
-                "the 'shift' training stage is not yet available: it needs the dynamic-shifting module "
-                "(dsnet_core.shifting, issue 6) wired into training; train 'semantic' and 'offset' for now"
-            )
         self.device = torch.device(config.device)
         self.reader, self.val_reader = reader, val_reader
         self.train_vols = volume_refs(reader, sequences, config.scans)
@@ -164,6 +158,9 @@ class Trainer:
             done, total = self.card.epochs.get(stage, 0), self.cfg.epochs.get(stage, 0)
             if done >= total:
                 continue
+            if stage == "shift":
+                self._run_shift(done, total)
+                continue
             opt = self._optimizer(stage)
             if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
                 log.info("restored optimiser state of %s epoch %d", stage, done)
@@ -177,6 +174,50 @@ class Trainer:
                 self._save(stage, epoch + 1, opt)
                 log.info("%s epoch %d: loss %.4f, val mIoU %.4f", stage, epoch + 1, loss, record["val_miou"])
         return self.card
+
+    def _run_shift(self, done: int, total: int) -> None:
+        """Train the shifting MLPs (everything else frozen); weights go to ``CKPT/shift.safetensors``."""
+        for p in self.model.parameters():
+            p.requires_grad_(False)
+        module = make_shift_module(self.cfg.scans, self.model.config.ins_dim)
+        saved = load_shift_weights(self.out) if done else None
+        if saved is not None:
+            module.load_state_dict(saved)
+        n_seeds = seeds_per_volume(self.cfg.scans)
+        log.info("shift stage: collecting seeds of %d training volumes", len(self.train_vols))
+        train = shift_samples(self.model, self.reader, self.train_vols, self.label_map, n_seeds, self.device)
+        val = shift_samples(self.model, self.val_reader, self.val_vols, self.label_map, n_seeds, self.device)
+        if not train:
+            raise ConfigError("the shift stage needs training volumes with thing instances")
+        last_miou = next(
+            (m["val_miou"] for m in reversed(self.card.metrics) if "val_miou" in m), float("nan")
+        )
+        for epoch in range(done, total):
+            t0 = time.perf_counter()
+            losses = train_shift(
+                module,
+                train,
+                steps=len(train),
+                lr=self.cfg.lr,
+                seed=self.cfg.seed * 1000 + epoch,
+                device=str(self.device),
+            )
+            record = {"stage": "shift", "epoch": epoch + 1, "train_loss": float(np.mean(losses))}
+            record["val_miou"] = last_miou
+            record["val_shift_l1"] = shift_error(module, val, self.device)
+            record["seconds"] = round(time.perf_counter() - t0, 2)
+            self.card.metrics.append(record)
+            self.card.epochs["shift"] = epoch + 1
+            self.out.mkdir(parents=True, exist_ok=True)
+            save_shift_weights(self.out, module)
+            save_checkpoint(self.out, self.model, self.card)
+            write_metrics_table(self.out, self.card.metrics)
+            log.info(
+                "shift epoch %d: loss %.4f, val shift L1 %.4f",
+                epoch + 1,
+                record["train_loss"],
+                record["val_shift_l1"],
+            )
 
     def _optimizer(self, stage: str) -> torch.optim.Optimizer:
         head = stage == "offset"
@@ -282,7 +323,7 @@ def _with_points(s: Sample, points: np.ndarray) -> Sample:
 def write_metrics_table(out: Path, metrics: list[dict]) -> None:
     """``metrics.json`` (full records) and ``metrics.csv`` (scalars) beside the checkpoint."""
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    cols = ["stage", "epoch", "train_loss", "val_miou", "val_offset_l1", "seconds"]
+    cols = ["stage", "epoch", "train_loss", "val_miou", "val_offset_l1", "val_shift_l1", "seconds"]
     with open(out / "metrics.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
         w.writeheader()

@@ -38,9 +38,11 @@ def train(
     seed: int = typer.Option(0, help="Seed of initialisation, shuffling and augmentation."),
     augment: bool = typer.Option(True, help="Yaw/flip/scale/translation augmentation."),
     threads: int = typer.Option(1, help="Torch CPU threads."),
+    grid: str = typer.Option(None, help="Cylinder cells 'ρ,φ,z' (default: the preset's, 480,360,32)."),
 ) -> None:
     """Train DS-Net (semantic → instance head → shifting) and write a checkpoint with a model card."""
     import logging
+    from dataclasses import replace
 
     import torch
     from rich.console import Console
@@ -76,9 +78,13 @@ def train(
             augment=augment,
             device=device,
         )
-        trainer = Trainer(
-            out, get_preset(preset), reader, seqs, val_reader, vseqs, label_map, cfg, resume=resume
-        )
+        model_config = get_preset(preset)
+        if grid:
+            cells = tuple(int(v) for v in grid.split(",") if v.strip().isdigit())
+            if len(cells) != 3:
+                raise typer.BadParameter(f"--grid wants three cell counts 'ρ,φ,z', got '{grid}'")
+            model_config = replace(model_config, grid=replace(model_config.grid, size=cells))
+        trainer = Trainer(out, model_config, reader, seqs, val_reader, vseqs, label_map, cfg, resume=resume)
         with Progress(
             TextColumn("{task.description}"),
             BarColumn(),

@@ -7,10 +7,11 @@ import torch
 from dsnet_core.errors import ConfigError
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
+from dsnet_core.model.bundle import load_shift_weights
 from dsnet_core.model.checkpoint import load_checkpoint
 from dsnet_core.model.cylinder import CylinderGrid
 from dsnet_core.model.presets import PRESETS
-from dsnet_core.train.loop import StageUnavailableError, TrainConfig, Trainer
+from dsnet_core.train.loop import TrainConfig, Trainer
 from tests.helpers.tiny_log import write_tiny_log
 
 LM = load_label_map("semantic-kitti")
@@ -49,7 +50,7 @@ def test_resumed_training_equals_uninterrupted(log, tmp_path):
     for (k, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
         assert torch.equal(x, y), k
     rows = (tmp_path / "b" / "metrics.csv").read_text().splitlines()
-    assert rows[0] == "stage,epoch,train_loss,val_miou,val_offset_l1,seconds" and len(rows) == 3
+    assert rows[0] == "stage,epoch,train_loss,val_miou,val_offset_l1,val_shift_l1,seconds" and len(rows) == 3
 
 
 def test_existing_checkpoint_needs_resume(log, tmp_path):
@@ -58,9 +59,22 @@ def test_existing_checkpoint_needs_resume(log, tmp_path):
         trainer(log, tmp_path, stage="semantic", epochs={"semantic": 1})
 
 
-def test_shift_stage_not_yet_available(log, tmp_path):
-    with pytest.raises(StageUnavailableError, match="'shift' training stage is not yet available"):
-        trainer(log, tmp_path, stage="shift")
+def test_all_stages_write_shift_weights(log, tmp_path):
+    card = trainer(log, tmp_path, stage="all", epochs={"semantic": 1, "offset": 1, "shift": 1}).run()
+    assert card.epochs == {"semantic": 1, "offset": 1, "shift": 1}
+    assert [m["stage"] for m in card.metrics] == ["semantic", "offset", "shift"]
+    shift = card.metrics[-1]
+    assert shift["train_loss"] > 0 and shift["val_shift_l1"] > 0
+    weights = load_shift_weights(tmp_path)
+    assert (
+        weights is not None and "mlps.0.0.weight" in weights and weights["mlps.0.0.weight"].shape == (32, 32)
+    )
+    # the network itself is frozen during the shift stage: its weights equal those after 'offset'
+    rows = (tmp_path / "metrics.csv").read_text().splitlines()
+    assert rows[0].split(",")[-2] == "val_shift_l1" and len(rows) == 4
+
+
+def test_unknown_stage(log, tmp_path):
     with pytest.raises(ConfigError, match="unknown training stage 'bogus'"):
         trainer(log, tmp_path, stage="bogus")
 

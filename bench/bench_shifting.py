@@ -3,20 +3,21 @@
 1. FPS: ms for 10 000 of 60 000 points, vs a vectorised numpy FPS.
 2. Dynamic shifting at 10 000 seeds: neighbour-list kernel vs the dense M'xM' kernel (same output).
 3. Dynamic shifting + final clustering (full ``DynamicShiftClusterer.cluster``) vs scikit-learn
-   ``MeanShift(bin_seeding=True)`` on all regressed centres, with PQ^Th of both (oracle toy scans,
-   learned weights from tests/dsnet_core/data/shift_oracle.safetensors).
+   ``MeanShift(bin_seeding=True)`` on all regressed centres, with PQ^Th of both (oracle inputs on
+   held-out synthetic HDL-64 scans, learned weights from tests/dsnet_core/data/shift_oracle.safetensors).
 
     .venv/bin/python bench/bench_shifting.py
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
-from _oracle import oracle_scan, score
+from _oracle import score, synth_scans
 from safetensors.torch import load_file
 
 from dsnet_core.clustering import DynamicShiftClusterer
@@ -56,13 +57,17 @@ class SklearnMeanShift:
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", default="/tmp/dsnet_shift_bench", help="where the synthetic logs are cached")
+    ap.add_argument("--scans", type=int, default=4)
+    args = ap.parse_args()
     torch.set_num_threads(1)
-    scans = [oracle_scan(2000 + s, 70_000 + s) for s in range(4)]
+    scans = synth_scans(Path(args.data) / "test_seed2", 2, 2, 8)[: args.scans]
 
     # 1. FPS
     rng = np.random.default_rng(0)
-    pts = np.concatenate([s.xyz for s in scans])
-    pts = pts[rng.permutation(len(pts))[:60_000]]
+    pts = np.concatenate([s.xyz for s in scans])  # HDL-64 scans of the synthetic log
+    pts = pts[np.sort(rng.permutation(len(pts))[:60_000])]
     farthest_point_sampling(pts[:1000], 10)  # load the compiled kernel
     t_fps, idx = best_of(lambda: farthest_point_sampling(pts, 10_000), 3)
     t_np, ref = best_of(lambda: numpy_fps(pts, 10_000), 1)

@@ -9,7 +9,7 @@ discriminated union on ``kind``) through :func:`get_clusterer`; algorithms never
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Protocol
+from typing import Annotated, Literal, NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -61,6 +61,14 @@ def _nearest_fill(xyz: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return out
 
 
+class ShiftOutput(NamedTuple):
+    """ids int64 (M,) 1..K; seeds int64 (M',) indices of the seeds; converged float32 (M', 3) metres."""
+
+    ids: np.ndarray
+    seeds: np.ndarray
+    converged: np.ndarray
+
+
 class DynamicShiftClusterer:
     """DS-Net: FPS seeds, dynamic shifting, mean shift of the converged seeds, nearest-seed ids."""
 
@@ -76,36 +84,37 @@ class DynamicShiftClusterer:
         self.final_bandwidth = final_bandwidth
         self.device = device
 
-    def shift(
-        self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Seeds and their converged positions.
+    def run(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray) -> ShiftOutput:
+        """The whole DS-Net instance step, keeping the seeds for inspection (the ``shift`` stage).
 
-        Returns:
-            (seed indices int64 (M',), converged float32 (M', 3)).
+        Args:
+            xyz: float32 (M, 3) thing point positions, metres.
+            centres: float32 (M, 3) regressed centres, metres.
+            features: float32/float16 (M, D) instance features.
         """
+        m = xyz.shape[0]
+        if m == 0:
+            return ShiftOutput(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32))
         seeds = farthest_point_sampling(xyz, self.n_seeds)
+        if m == 1:  # batch norm cannot run on one seed; one point is one instance
+            return ShiftOutput(np.ones(1, np.int64), seeds, centres[seeds].astype(np.float32))
         x = torch.from_numpy(np.ascontiguousarray(centres[seeds], dtype=np.float32)).to(self.device)
         f = torch.from_numpy(np.ascontiguousarray(features[seeds])).to(self.device)
         with torch.no_grad():
-            out = self.module(x, f)
-        return seeds, out.positions[-1].cpu().numpy()
+            converged = self.module(x, f).positions[-1].cpu().numpy()
+        seed_ids = cluster_seeds(converged, self.final_bandwidth)
+        if seeds.size == m:
+            ids = np.empty(m, dtype=np.int64)
+            ids[seeds] = seed_ids
+        else:
+            _, nn = cKDTree(xyz[seeds]).query(xyz, k=1)
+            ids = seed_ids[nn]
+        return ShiftOutput(ids, seeds, converged)
 
     def cluster(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray | None) -> np.ndarray:
         if features is None:
             raise ValueError("dynamic shifting needs the per-point instance features (got None)")
-        if xyz.shape[0] == 0:
-            return np.zeros(0, dtype=np.int64)
-        if xyz.shape[0] == 1:
-            return np.ones(1, dtype=np.int64)
-        seeds, converged = self.shift(xyz, centres, features)
-        seed_ids = cluster_seeds(converged, self.final_bandwidth)
-        if seeds.size == xyz.shape[0]:
-            out = np.empty(xyz.shape[0], dtype=np.int64)
-            out[seeds] = seed_ids
-            return out
-        _, nn = cKDTree(xyz[seeds]).query(xyz, k=1)
-        return seed_ids[nn]
+        return self.run(xyz, centres, features).ids
 
 
 class MeanShiftClusterer:

@@ -84,10 +84,11 @@ def test_dynamic_shift_non_seeds_take_nearest_seed_id():
     xyz, reg, _ = _objects(1, k=6, n=600)
     reg[:300] += np.float32(0.5)  # make the result depend on which points are seeds
     clusterer = DynamicShiftClusterer(DynamicShift.with_fixed_weights([1, 0, 0]), n_seeds=50)
-    seeds, _ = clusterer.shift(xyz, reg, np.zeros((600, 32), np.float32))
-    ids = clusterer.cluster(xyz, reg, np.zeros((600, 32), np.float32))
-    _, nn = cKDTree(xyz[seeds]).query(xyz)
-    np.testing.assert_array_equal(ids, ids[seeds][nn])
+    out = clusterer.run(xyz, reg, np.zeros((600, 32), np.float32))
+    assert out.seeds.shape == (50,) and out.converged.shape == (50, 3)
+    np.testing.assert_array_equal(clusterer.cluster(xyz, reg, np.zeros((600, 32), np.float32)), out.ids)
+    _, nn = cKDTree(xyz[out.seeds]).query(xyz)
+    np.testing.assert_array_equal(out.ids, out.ids[out.seeds][nn])
 
 
 def test_dynamic_shift_needs_features_and_handles_tiny_inputs():

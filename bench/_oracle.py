@@ -52,9 +52,12 @@ def oracle_scans(root: Path, noise_seed: int, noise_scale: float = 1.0) -> list[
     return scans
 
 
-def synth_scans(root: Path, seed: int, sequences: int, frames: int, noise_scale: float = 1.0):
+def synth_scans(
+    root: Path, seed: int, sequences: int, frames: int, noise_scale: float = 1.0, sensor: str = "hdl64"
+) -> list[OracleScan]:
+    """Oracle scans of a synthetic log, generated into ``root`` unless it is already there."""
     if not (root / "sequences").exists():
-        generate_log(root, sequences=sequences, frames=frames, seed=seed, sensor="hdl64")
+        generate_log(root, sequences=sequences, frames=frames, seed=seed, sensor=sensor)
     return oracle_scans(root, noise_seed=10_000 * seed, noise_scale=noise_scale)
 
 

@@ -3,9 +3,10 @@
 Oracle-feature experiment, no network: synthetic HDL-64 logs (``dsnet_core.synth``), ground-truth
 semantics, ground-truth box centres plus the regression-noise model of ``dsnet_core.oracle``, and
 32-d oracle features (ground-truth class one-hot + regressed-centre geometry) in place of the
-backbone feature. The shifting MLPs are trained on a log of one seed; every heuristic's
-parameters are tuned by grid search on a subset of the same training scans; all are scored
-(PQ^Th, official SemanticKITTI semantics, project evaluator) on a log of another seed.
+backbone feature. The shifting MLPs are trained on logs of one seed (VLP-32 and HDL-64 scans);
+every heuristic's parameters are tuned by grid search on a subset of the VLP-32 training scans;
+all are scored (PQ^Th, official SemanticKITTI semantics, project evaluator) on a VLP-32 log of
+another seed.
 
     .venv/bin/python bench/ablation_shifting.py [--save-weights PATH] [--data DIR]
 """
@@ -58,9 +59,10 @@ def main() -> None:
     torch.manual_seed(0)
     t0 = time.perf_counter()
     data = Path(args.data)
-    train = synth_scans(data / "train_seed1", 1, 3, args.frames, args.noise_scale)
-    test = synth_scans(data / "test_seed2", 2, 2, args.frames, args.noise_scale)
+    train = synth_scans(data / "train_seed1_vlp32", 1, 2, args.frames, args.noise_scale, "vlp32")
     tune = train[:: max(1, len(train) // args.tune_scans)][: args.tune_scans]
+    train += synth_scans(data / "train_seed1", 1, 3, args.frames, args.noise_scale, "hdl64")[: args.frames]
+    test = synth_scans(data / "test_seed2_vlp32", 2, 2, args.frames, args.noise_scale, "vlp32")
     print(
         f"{len(train)} training scans, {len(test)} held-out scans ({time.perf_counter() - t0:.0f} s)",
         flush=True,

@@ -16,7 +16,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from dsnet_core.components import radius_components
+from dsnet_core.components import dbscan, radius_components
 from dsnet_core.fps import farthest_point_sampling
 from dsnet_core.meanshift import cluster_seeds, mean_shift
 from dsnet_core.shifting import BANDWIDTHS_3D, BANDWIDTHS_4D, DynamicShift
@@ -131,18 +131,17 @@ class MeanShiftClusterer:
 
 
 class DBSCANClusterer:
-    """DBSCAN on the regressed centres; noise points take their nearest clustered point's id
-    (in ``xyz``) unless ``assign_noise`` is off (then they stay 0)."""
+    """DBSCAN on the regressed centres (:func:`dsnet_core.components.dbscan`, without neighbour
+    lists: scikit-learn's runs out of memory on dense regressed centres). Noise points take their
+    nearest clustered point's id (in ``xyz``) unless ``assign_noise`` is off (then they stay 0)."""
 
     def __init__(self, eps: float = 0.4, min_samples: int = 10, assign_noise: bool = True) -> None:
         self.eps, self.min_samples, self.assign_noise = eps, min_samples, assign_noise
 
     def cluster(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray | None) -> np.ndarray:
-        from sklearn.cluster import DBSCAN
-
         if centres.shape[0] == 0:
             return np.zeros(0, dtype=np.int64)
-        labels = DBSCAN(eps=self.eps, min_samples=self.min_samples).fit(centres).labels_
+        labels = dbscan(centres, self.eps, self.min_samples)
         ids = _ranked_ids(labels)
         return _nearest_fill(xyz, ids) if self.assign_noise else ids
 

@@ -84,6 +84,21 @@ class DynamicShiftClusterer:
         self.final_bandwidth = final_bandwidth
         self.device = device
 
+    def shift(
+        self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """FPS seeds and their positions after dynamic shifting (needs M ≥ 2 points).
+
+        Returns:
+            (seed indices int64 (M',), converged float32 (M', 3) metres).
+        """
+        seeds = farthest_point_sampling(xyz, self.n_seeds)
+        x = torch.from_numpy(np.ascontiguousarray(centres[seeds], dtype=np.float32)).to(self.device)
+        f = torch.from_numpy(np.ascontiguousarray(features[seeds])).to(self.device)
+        with torch.no_grad():
+            converged = self.module(x, f).positions[-1].cpu().numpy()
+        return seeds, converged
+
     def run(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray) -> ShiftOutput:
         """The whole DS-Net instance step, keeping the seeds for inspection (the ``shift`` stage).
 
@@ -95,13 +110,9 @@ class DynamicShiftClusterer:
         m = xyz.shape[0]
         if m == 0:
             return ShiftOutput(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32))
-        seeds = farthest_point_sampling(xyz, self.n_seeds)
         if m == 1:  # batch norm cannot run on one seed; one point is one instance
-            return ShiftOutput(np.ones(1, np.int64), seeds, centres[seeds].astype(np.float32))
-        x = torch.from_numpy(np.ascontiguousarray(centres[seeds], dtype=np.float32)).to(self.device)
-        f = torch.from_numpy(np.ascontiguousarray(features[seeds])).to(self.device)
-        with torch.no_grad():
-            converged = self.module(x, f).positions[-1].cpu().numpy()
+            return ShiftOutput(np.ones(1, np.int64), np.zeros(1, np.int64), centres.astype(np.float32))
+        seeds, converged = self.shift(xyz, centres, features)
         seed_ids = cluster_seeds(converged, self.final_bandwidth)
         if seeds.size == m:
             ids = np.empty(m, dtype=np.int64)

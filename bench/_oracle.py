@@ -1,4 +1,9 @@
-"""Shared set-up of the shifting benchmarks: toy scenes with oracle centres and features."""
+"""Shared set-up of the shifting benchmarks: synthetic logs with oracle centres and features.
+
+Ground-truth semantics stand in for the prediction; regressed centres are ground-truth box
+centres plus ``dsnet_core.oracle`` noise; features are ``oracle_features``. Scored with the
+project's SemanticKITTI evaluator (official mode; PQ^Th over the 8 thing classes).
+"""
 
 from __future__ import annotations
 
@@ -11,9 +16,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dsnet_core.fusion import fuse
-from dsnet_core.oracle import box_centres, noisy_centres, oracle_features
-from dsnet_core.toyscene import make_scene
-from tests.dsnet_core.pq_lite import ThingPQ
+from dsnet_core.io.semantickitti import SemanticKittiReader
+from dsnet_core.labels import load_label_map
+from dsnet_core.metrics import PanopticEvaluator
+from dsnet_core.oracle import oracle_inputs
+from dsnet_core.synth import generate_log
+
+LABEL_MAP = load_label_map("semantic-kitti")
 
 
 @dataclass
@@ -27,23 +36,39 @@ class OracleScan:
     features: np.ndarray  # (M, 32) oracle features
 
 
-def oracle_scan(scene_seed: int, noise_seed: int, noise_scale: float = 1.0) -> OracleScan:
-    sc = make_scene(scene_seed)
-    th = sc.instance > 0
-    xyz = sc.xyz[th]
-    gt = box_centres(xyz, sc.instance[th])
-    cen = noisy_centres(xyz, gt, sc.instance[th], seed=noise_seed, scale=noise_scale)
-    return OracleScan(
-        sc.xyz, sc.semantic, sc.instance, th, cen, gt, oracle_features(xyz, cen, sc.semantic[th])
-    )
+def oracle_scans(root: Path, noise_seed: int, noise_scale: float = 1.0) -> list[OracleScan]:
+    """Every frame of the SemanticKITTI-layout log at ``root`` as oracle inputs."""
+    reader = SemanticKittiReader(root)
+    scans = []
+    for seq in reader.sequences():
+        for frame in reader.frames(seq):
+            pts = reader.scan(frame)
+            lab = reader.labels(frame, len(pts))
+            sem = LABEL_MAP.to_train(lab & 0xFFFF).astype(np.int64)
+            inst = (lab >> 16).astype(np.int64)
+            xyz = np.ascontiguousarray(pts[:, :3])
+            o = oracle_inputs(xyz, sem, inst, LABEL_MAP.things, noise_seed + len(scans), noise_scale)
+            scans.append(OracleScan(xyz, sem, inst, o.thing, o.centres, o.gt_centres, o.features))
+    return scans
 
 
-def score(scans: list[OracleScan], clusterer) -> tuple[float, dict[int, float]]:
-    acc = ThingPQ()
+def synth_scans(
+    root: Path, seed: int, sequences: int, frames: int, noise_scale: float = 1.0, sensor: str = "hdl64"
+) -> list[OracleScan]:
+    """Oracle scans of a synthetic log, generated into ``root`` unless it is already there."""
+    if not (root / "sequences").exists():
+        generate_log(root, sequences=sequences, frames=frames, seed=seed, sensor=sensor)
+    return oracle_scans(root, noise_seed=10_000 * seed, noise_scale=noise_scale)
+
+
+def score(scans: list[OracleScan], clusterer) -> tuple[float, dict[str, float]]:
+    """PQ^Th (official SemanticKITTI semantics) and per-thing-class PQ of ``clusterer`` + fusion."""
+    ev = PanopticEvaluator(LABEL_MAP, keep_rows=False)
     for s in scans:
         ids = clusterer.cluster(s.xyz[s.thing], s.centres, s.features)
         inst = np.zeros(len(s.xyz), np.int64)
         inst[s.thing] = ids
-        fused = fuse(s.xyz, s.semantic, inst, range(1, 9))
-        acc.add(s.semantic, s.instance, fused.semantic, fused.instance)
-    return acc.pq_things(), acc.per_class()
+        fused = fuse(s.xyz, s.semantic, inst, LABEL_MAP.things)
+        ev.add_train(s.semantic, s.instance, fused.semantic, fused.instance)
+    res = ev.result().panoptic
+    return res.pq_things, {k: v.pq for k, v in res.per_class.items() if v.thing}

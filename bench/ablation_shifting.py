@@ -1,12 +1,14 @@
 """DS-Net clustering ablation on oracle inputs: learned dynamic shifting vs heuristic clusterers.
 
-Oracle-feature experiment, no network: toy scenes, ground-truth semantics, ground-truth box
-centres plus the regression-noise model of ``dsnet_core.oracle``, and 32-d oracle features
-(ground-truth class one-hot + regressed-centre geometry) in place of the backbone feature. The
-shifting MLPs are trained on training scenes; every heuristic's parameters are tuned by grid
-search on (a subset of) the same training scenes; all are scored (PQ^Th) on held-out scenes.
+Oracle-feature experiment, no network: synthetic HDL-64 logs (``dsnet_core.synth``), ground-truth
+semantics, ground-truth box centres plus the regression-noise model of ``dsnet_core.oracle``, and
+32-d oracle features (ground-truth class one-hot + regressed-centre geometry) in place of the
+backbone feature. The shifting MLPs are trained on logs of one seed (VLP-32 and HDL-64 scans);
+every heuristic's parameters are tuned by grid search on a subset of the VLP-32 training scans;
+all are scored (PQ^Th, official SemanticKITTI semantics, project evaluator) on a VLP-32 log of
+another seed.
 
-    .venv/bin/python bench/ablation_shifting.py [--save-weights PATH]
+    .venv/bin/python bench/ablation_shifting.py [--save-weights PATH] [--data DIR]
 """
 
 from __future__ import annotations
@@ -14,10 +16,11 @@ from __future__ import annotations
 import argparse
 import itertools
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
-from _oracle import oracle_scan, score
+from _oracle import LABEL_MAP, score, synth_scans
 
 from dsnet_core.clustering import (
     BFSClusterer,
@@ -45,9 +48,9 @@ GRIDS = {
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--train-scenes", type=int, default=8)
-    ap.add_argument("--tune-scenes", type=int, default=3)
-    ap.add_argument("--test-scenes", type=int, default=6)
+    ap.add_argument("--data", default="/tmp/dsnet_shift_bench", help="where the synthetic logs are cached")
+    ap.add_argument("--frames", type=int, default=8, help="frames per sequence")
+    ap.add_argument("--tune-scans", type=int, default=6)
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--noise-scale", type=float, default=1.0)
     ap.add_argument("--save-weights", default=None)
@@ -55,11 +58,15 @@ def main() -> None:
     torch.set_num_threads(1)
     torch.manual_seed(0)
     t0 = time.perf_counter()
-    train = [
-        oracle_scan(s, 100 * s + k, args.noise_scale) for s in range(args.train_scenes) for k in range(2)
-    ]
-    test = [oracle_scan(1000 + s, 50_000 + s, args.noise_scale) for s in range(args.test_scenes)]
-    tune = train[: 2 * args.tune_scenes : 2]
+    data = Path(args.data)
+    train = synth_scans(data / "train_seed1_vlp32", 1, 2, args.frames, args.noise_scale, "vlp32")
+    tune = train[:: max(1, len(train) // args.tune_scans)][: args.tune_scans]
+    train += synth_scans(data / "train_seed1", 1, 3, args.frames, args.noise_scale, "hdl64")[: args.frames]
+    test = synth_scans(data / "test_seed2_vlp32", 2, 2, args.frames, args.noise_scale, "vlp32")
+    print(
+        f"{len(train)} training scans, {len(test)} held-out scans ({time.perf_counter() - t0:.0f} s)",
+        flush=True,
+    )
     samples = [make_sample(s.xyz[s.thing], s.centres, s.features, s.gt_centres, 10_000) for s in train]
     module = DynamicShift()
     losses = train_shift(module, samples, args.steps, lr=3e-3)
@@ -89,10 +96,11 @@ def main() -> None:
         f"\nheld-out PQ^Th, {len(test)} scenes, noise scale {args.noise_scale} "
         f"({time.perf_counter() - t0:.0f} s total)\n"
     )
-    print("| clusterer | parameters (tuned on train) | PQ^Th | car | truck | person | bicyclist |")
-    print("|---|---|---|---|---|---|---|")
+    names = [LABEL_MAP.class_names[c] for c in LABEL_MAP.things]
+    print("| clusterer | parameters (tuned on train) | PQ^Th | " + " | ".join(names) + " |")
+    print("|---" * (3 + len(names)) + "|")
     for name, params, pq, per in rows:
-        cls = " | ".join(f"{per.get(c, float('nan')):.3f}" for c in (1, 4, 6, 7))
+        cls = " | ".join(f"{per.get(n, float('nan')):.3f}" for n in names)
         print(f"| {name} | {params} | {pq:.3f} | {cls} |")
 
 

@@ -9,14 +9,14 @@ discriminated union on ``kind``) through :func:`get_clusterer`; algorithms never
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Protocol
+from typing import Annotated, Literal, NamedTuple, Protocol
 
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from dsnet_core.components import radius_components
+from dsnet_core.components import dbscan, radius_components
 from dsnet_core.fps import farthest_point_sampling
 from dsnet_core.meanshift import cluster_seeds, mean_shift
 from dsnet_core.shifting import BANDWIDTHS_3D, BANDWIDTHS_4D, DynamicShift
@@ -61,6 +61,14 @@ def _nearest_fill(xyz: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return out
 
 
+class ShiftOutput(NamedTuple):
+    """ids int64 (M,) 1..K; seeds int64 (M',) indices of the seeds; converged float32 (M', 3) metres."""
+
+    ids: np.ndarray
+    seeds: np.ndarray
+    converged: np.ndarray
+
+
 class DynamicShiftClusterer:
     """DS-Net: FPS seeds, dynamic shifting, mean shift of the converged seeds, nearest-seed ids."""
 
@@ -79,33 +87,45 @@ class DynamicShiftClusterer:
     def shift(
         self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Seeds and their converged positions.
+        """FPS seeds and their positions after dynamic shifting (needs M ≥ 2 points).
 
         Returns:
-            (seed indices int64 (M',), converged float32 (M', 3)).
+            (seed indices int64 (M',), converged float32 (M', 3) metres).
         """
         seeds = farthest_point_sampling(xyz, self.n_seeds)
         x = torch.from_numpy(np.ascontiguousarray(centres[seeds], dtype=np.float32)).to(self.device)
         f = torch.from_numpy(np.ascontiguousarray(features[seeds])).to(self.device)
         with torch.no_grad():
-            out = self.module(x, f)
-        return seeds, out.positions[-1].cpu().numpy()
+            converged = self.module(x, f).positions[-1].cpu().numpy()
+        return seeds, converged
+
+    def run(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray) -> ShiftOutput:
+        """The whole DS-Net instance step, keeping the seeds for inspection (the ``shift`` stage).
+
+        Args:
+            xyz: float32 (M, 3) thing point positions, metres.
+            centres: float32 (M, 3) regressed centres, metres.
+            features: float32/float16 (M, D) instance features.
+        """
+        m = xyz.shape[0]
+        if m == 0:
+            return ShiftOutput(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32))
+        if m == 1:  # batch norm cannot run on one seed; one point is one instance
+            return ShiftOutput(np.ones(1, np.int64), np.zeros(1, np.int64), centres.astype(np.float32))
+        seeds, converged = self.shift(xyz, centres, features)
+        seed_ids = cluster_seeds(converged, self.final_bandwidth)
+        if seeds.size == m:
+            ids = np.empty(m, dtype=np.int64)
+            ids[seeds] = seed_ids
+        else:
+            _, nn = cKDTree(xyz[seeds]).query(xyz, k=1)
+            ids = seed_ids[nn]
+        return ShiftOutput(ids, seeds, converged)
 
     def cluster(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray | None) -> np.ndarray:
         if features is None:
             raise ValueError("dynamic shifting needs the per-point instance features (got None)")
-        if xyz.shape[0] == 0:
-            return np.zeros(0, dtype=np.int64)
-        if xyz.shape[0] == 1:
-            return np.ones(1, dtype=np.int64)
-        seeds, converged = self.shift(xyz, centres, features)
-        seed_ids = cluster_seeds(converged, self.final_bandwidth)
-        if seeds.size == xyz.shape[0]:
-            out = np.empty(xyz.shape[0], dtype=np.int64)
-            out[seeds] = seed_ids
-            return out
-        _, nn = cKDTree(xyz[seeds]).query(xyz, k=1)
-        return seed_ids[nn]
+        return self.run(xyz, centres, features).ids
 
 
 class MeanShiftClusterer:
@@ -122,18 +142,17 @@ class MeanShiftClusterer:
 
 
 class DBSCANClusterer:
-    """DBSCAN on the regressed centres; noise points take their nearest clustered point's id
-    (in ``xyz``) unless ``assign_noise`` is off (then they stay 0)."""
+    """DBSCAN on the regressed centres (:func:`dsnet_core.components.dbscan`, without neighbour
+    lists: scikit-learn's runs out of memory on dense regressed centres). Noise points take their
+    nearest clustered point's id (in ``xyz``) unless ``assign_noise`` is off (then they stay 0)."""
 
     def __init__(self, eps: float = 0.4, min_samples: int = 10, assign_noise: bool = True) -> None:
         self.eps, self.min_samples, self.assign_noise = eps, min_samples, assign_noise
 
     def cluster(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray | None) -> np.ndarray:
-        from sklearn.cluster import DBSCAN
-
         if centres.shape[0] == 0:
             return np.zeros(0, dtype=np.int64)
-        labels = DBSCAN(eps=self.eps, min_samples=self.min_samples).fit(centres).labels_
+        labels = dbscan(centres, self.eps, self.min_samples)
         ids = _ranked_ids(labels)
         return _nearest_fill(xyz, ids) if self.assign_noise else ids
 

@@ -91,3 +91,39 @@ def _unite_cells(p, ukeys, starts, r2, dims):
     for c in range(n_cells):
         root[c] = _find(parent, c)
     return root
+
+
+def dbscan(x: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
+    """DBSCAN without neighbour lists: core points have ≥ ``min_samples`` points (themselves
+    included) within ``eps``; clusters are the radius components of the core points; a border
+    point joins the cluster of its nearest core point within ``eps`` (scikit-learn gives a border
+    point reachable from two clusters to the one it expands first); the rest is noise.
+
+    Args:
+        x: (N, 3) positions in metres.
+        eps: neighbourhood radius in metres (boundary included).
+        min_samples: neighbourhood size that makes a core point.
+
+    Returns:
+        int64 (N,) labels 0..C−1 by first appearance of their core points, −1 for noise.
+    """
+    from scipy.spatial import cKDTree
+
+    from dsnet_core.radius import radius_sums
+
+    n = x.shape[0]
+    labels = np.full(n, -1, dtype=np.int64)
+    if n == 0:
+        return labels
+    xf = np.ascontiguousarray(x, dtype=np.float64)
+    counts = radius_sums(xf, xf, np.array([eps]), np.ones((1, n, 1)))[0, :, 0]
+    core = counts >= min_samples
+    if not core.any():
+        return labels
+    labels[core] = radius_components(xf[core], eps)
+    border = np.flatnonzero(~core)
+    if border.size:
+        dist, nn = cKDTree(xf[core]).query(xf[border], k=1, distance_upper_bound=eps * (1 + 1e-9))
+        ok = np.isfinite(dist)
+        labels[border[ok]] = labels[core][nn[ok]]
+    return labels

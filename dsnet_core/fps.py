@@ -12,7 +12,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_LEAF_SIZE = 64
+_LEAF_SIZE = 128
+_GROUP = 16  # leaves per group
 
 
 def farthest_point_sampling(points: np.ndarray, n: int) -> np.ndarray:
@@ -68,6 +69,19 @@ def _kd_leaves(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True)
+def _box_lb(lo: np.ndarray, hi: np.ndarray, b: int, p: np.ndarray, cur: int) -> float:
+    """Squared distance from point ``p[cur]`` to box ``b``: a lower bound for every point inside."""
+    lb = 0.0
+    for k in range(3):
+        c = p[cur, k]
+        if c < lo[b, k]:
+            lb += (lo[b, k] - c) * (lo[b, k] - c)
+        elif c > hi[b, k]:
+            lb += (c - hi[b, k]) * (c - hi[b, k])
+    return lb
+
+
+@numba.njit(cache=True)
 def _fps_leaves(p: np.ndarray, orig: np.ndarray, start: np.ndarray, n: int) -> np.ndarray:
     n_leaves = start.shape[0] - 1
     m = p.shape[0]
@@ -97,40 +111,61 @@ def _fps_leaves(p: np.ndarray, orig: np.ndarray, start: np.ndarray, n: int) -> n
     for i in range(m):
         if orig[i] == 0:
             cur = i
+    # groups of consecutive (hence nearby) leaves: one box test can skip a whole group
+    n_groups = (n_leaves + _GROUP - 1) // _GROUP
+    glo = np.empty((n_groups, 3))
+    ghi = np.empty((n_groups, 3))
+    gmax = np.full(n_groups, np.inf)
+    garg = np.empty(n_groups, dtype=np.int64)
+    for g in range(n_groups):
+        for k in range(3):
+            glo[g, k] = np.inf
+            ghi[g, k] = -np.inf
+        garg[g] = leaf_arg[g * _GROUP]
+        for leaf in range(g * _GROUP, min((g + 1) * _GROUP, n_leaves)):
+            for k in range(3):
+                glo[g, k] = min(glo[g, k], lo[leaf, k])
+                ghi[g, k] = max(ghi[g, k], hi[leaf, k])
     for s in range(n):
         out[s] = orig[cur]
         cx, cy, cz = p[cur, 0], p[cur, 1], p[cur, 2]
-        for leaf in range(n_leaves):
-            # squared distance from the new sample to the leaf's box: a lower bound for its points
-            lb = 0.0
-            for k in range(3):
-                c = p[cur, k]
-                if c < lo[leaf, k]:
-                    lb += (lo[leaf, k] - c) * (lo[leaf, k] - c)
-                elif c > hi[leaf, k]:
-                    lb += (c - hi[leaf, k]) * (c - hi[leaf, k])
-            if lb * (1.0 - 1e-9) >= leaf_max[leaf]:
+        for g in range(n_groups):
+            if _box_lb(glo, ghi, g, p, cur) * (1.0 - 1e-9) >= gmax[g]:
                 continue
+            for leaf in range(g * _GROUP, min((g + 1) * _GROUP, n_leaves)):
+                # squared distance from the new sample to the leaf's box: a lower bound for its points
+                if _box_lb(lo, hi, leaf, p, cur) * (1.0 - 1e-9) >= leaf_max[leaf]:
+                    continue
+                best_v = -1.0
+                best_i = -1
+                for i in range(start[leaf], start[leaf + 1]):
+                    dx = p[i, 0] - cx
+                    dy = p[i, 1] - cy
+                    dz = p[i, 2] - cz
+                    d = dx * dx + dy * dy + dz * dz
+                    if d < dist[i]:
+                        dist[i] = d
+                    v = dist[i]
+                    if v > best_v or (v == best_v and orig[i] < orig[best_i]):
+                        best_v = v
+                        best_i = i
+                leaf_max[leaf] = best_v
+                leaf_arg[leaf] = best_i
             best_v = -1.0
             best_i = -1
-            for i in range(start[leaf], start[leaf + 1]):
-                dx = p[i, 0] - cx
-                dy = p[i, 1] - cy
-                dz = p[i, 2] - cz
-                d = dx * dx + dy * dy + dz * dz
-                if d < dist[i]:
-                    dist[i] = d
-                v = dist[i]
+            for leaf in range(g * _GROUP, min((g + 1) * _GROUP, n_leaves)):
+                v = leaf_max[leaf]
+                i = leaf_arg[leaf]
                 if v > best_v or (v == best_v and orig[i] < orig[best_i]):
                     best_v = v
                     best_i = i
-            leaf_max[leaf] = best_v
-            leaf_arg[leaf] = best_i
+            gmax[g] = best_v
+            garg[g] = best_i
         best_v = -1.0
         cur = -1
-        for leaf in range(n_leaves):
-            v = leaf_max[leaf]
-            i = leaf_arg[leaf]
+        for g in range(n_groups):
+            v = gmax[g]
+            i = garg[g]
             if v > best_v or (v == best_v and orig[i] < orig[cur]):
                 best_v = v
                 cur = i

@@ -73,7 +73,8 @@ def fuse(
         instance: int (N,) clusterer ids (1..K on thing points, 0 elsewhere). Ids on points
             predicted as stuff are dropped (set to 0).
         thing_classes: train ids of the thing classes (SemanticKITTI: 1..8).
-        probabilities: optional (N, C) float16/float32 class probabilities, column = train id.
+        probabilities: optional (N, C) class probabilities, column = train id: float16/float32,
+            or uint8 quantised as in the infer stage (p = q / 255).
 
     Returns:
         :class:`FusedLabels`.
@@ -99,6 +100,8 @@ def fuse(
     out_sem[members] = winner[inverse]
     if probabilities is not None:
         p = probabilities[members, winner[inverse]].astype(np.float64)
+        if probabilities.dtype == np.uint8:
+            p /= 255.0
         confidence = np.zeros(k)
         np.add.at(confidence, inverse, p)
         confidence /= np.maximum(n_points, 1)

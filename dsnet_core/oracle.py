@@ -13,6 +13,9 @@ features computable without a network.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 from dsnet_core.radius import radius_sums
@@ -139,3 +142,46 @@ def oracle_features(xyz: np.ndarray, centres: np.ndarray, semantic: np.ndarray) 
     )
     assert feats.shape[1] == 32
     return feats.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class OracleInputs:
+    """Oracle stand-ins for the network's outputs on one scan.
+
+    Attributes:
+        thing: bool (N,) points of thing classes (ground truth).
+        gt_centres: float32 (M, 3) box centres of the thing points' instances.
+        centres: float32 (M, 3) regressed centres (``gt_centres`` + :func:`noisy_centres` noise).
+        features: float32 (M, 32) :func:`oracle_features`.
+    """
+
+    thing: np.ndarray
+    gt_centres: np.ndarray
+    centres: np.ndarray
+    features: np.ndarray
+
+
+def oracle_inputs(
+    xyz: np.ndarray,
+    semantic: np.ndarray,
+    instance: np.ndarray,
+    things: Sequence[int],
+    noise_seed: int,
+    noise_scale: float = 1.0,
+) -> OracleInputs:
+    """Oracle centres and features of one scan from its ground truth.
+
+    Args:
+        xyz: float32 (N, 3) points, sensor at the origin, metres.
+        semantic: int (N,) ground-truth train ids.
+        instance: int (N,) ground-truth instance ids (unique within a class).
+        things: thing train ids.
+        noise_seed: seed of the regression noise.
+        noise_scale: multiplies the noise model's standard deviations.
+    """
+    thing = np.isin(semantic, np.asarray(things))
+    p = np.ascontiguousarray(xyz[thing], dtype=np.float32)
+    key = semantic[thing].astype(np.int64) * 65536 + instance[thing]
+    gt = box_centres(p, key)
+    centres = noisy_centres(p, gt, key, seed=noise_seed, scale=noise_scale)
+    return OracleInputs(thing, gt, centres, oracle_features(p, centres, semantic[thing]))

@@ -16,7 +16,7 @@ from dsnet_core.clustering import (
     MeanShiftClusterer,
     get_clusterer,
 )
-from dsnet_core.components import radius_components
+from dsnet_core.components import dbscan, radius_components
 from dsnet_core.shifting import BANDWIDTHS_4D, DynamicShift
 
 
@@ -84,10 +84,11 @@ def test_dynamic_shift_non_seeds_take_nearest_seed_id():
     xyz, reg, _ = _objects(1, k=6, n=600)
     reg[:300] += np.float32(0.5)  # make the result depend on which points are seeds
     clusterer = DynamicShiftClusterer(DynamicShift.with_fixed_weights([1, 0, 0]), n_seeds=50)
-    seeds, _ = clusterer.shift(xyz, reg, np.zeros((600, 32), np.float32))
-    ids = clusterer.cluster(xyz, reg, np.zeros((600, 32), np.float32))
-    _, nn = cKDTree(xyz[seeds]).query(xyz)
-    np.testing.assert_array_equal(ids, ids[seeds][nn])
+    out = clusterer.run(xyz, reg, np.zeros((600, 32), np.float32))
+    assert out.seeds.shape == (50,) and out.converged.shape == (50, 3)
+    np.testing.assert_array_equal(clusterer.cluster(xyz, reg, np.zeros((600, 32), np.float32)), out.ids)
+    _, nn = cKDTree(xyz[out.seeds]).query(xyz)
+    np.testing.assert_array_equal(out.ids, out.ids[out.seeds][nn])
 
 
 def test_dynamic_shift_needs_features_and_handles_tiny_inputs():
@@ -119,3 +120,26 @@ def test_radius_components_match_scipy_graph(seed, radius):
     got = radius_components(x, radius)
     assert _same_partition(got, ref)
     assert got[0] == 0 and got.max() == len(np.unique(ref)) - 1
+
+
+@pytest.mark.parametrize(("seed", "eps", "min_samples"), [(0, 0.3, 5), (1, 0.5, 10), (2, 0.2, 3)])
+def test_dbscan_matches_sklearn(seed, eps, min_samples):
+    from sklearn.cluster import DBSCAN
+
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-10, 10, size=(15, 3)) * [1, 1, 0.1]
+    x = (centres[rng.integers(0, 15, 1500)] + rng.normal(size=(1500, 3)) * 0.25).astype(np.float32)
+    ref = DBSCAN(eps=eps, min_samples=min_samples).fit(x.astype(np.float64))
+    got = dbscan(x, eps, min_samples)
+    np.testing.assert_array_equal(got == -1, ref.labels_ == -1)
+    core = np.zeros(len(x), bool)
+    core[ref.core_sample_indices_] = True
+    assert _same_partition(got[core], ref.labels_[core])
+    # border points may differ only where they are reachable from two clusters
+    differ = ~core & (got >= 0)
+    assert np.mean(_relabel(got, ref.labels_, core)[differ] != ref.labels_[differ]) < 0.01
+
+
+def _relabel(got, ref, core):
+    mapping = dict(zip(got[core], ref[core], strict=False))
+    return np.array([mapping.get(g, -1) for g in got])

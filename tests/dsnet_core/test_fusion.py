@@ -39,6 +39,9 @@ def test_confidence_is_mean_probability_of_the_winning_class():
     out = fuse(np.zeros((4, 3), np.float32), sem, inst, THINGS, probs)
     assert out.instances.confidence[0] == pytest.approx((0.9 + 0.7 + 0.2) / 3, abs=1e-3)
     assert out.semantic.tolist() == [1, 1, 1, 9]
+    quantised = np.round(probs.astype(np.float32) * 255).astype(np.uint8)
+    out8 = fuse(np.zeros((4, 3), np.float32), sem, inst, THINGS, quantised)
+    assert out8.instances.confidence[0] == pytest.approx((0.9 + 0.7 + 0.2) / 3, abs=3e-3)
 
 
 def test_no_instances_and_shape_errors():

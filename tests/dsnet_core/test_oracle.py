@@ -1,7 +1,6 @@
 import numpy as np
 
-from dsnet_core.oracle import box_centres, noisy_centres, oracle_features
-from dsnet_core.toyscene import make_scene
+from dsnet_core.oracle import box_centres, noisy_centres, oracle_inputs
 
 
 def test_box_centres_are_tight_box_centres_not_centroids():
@@ -29,11 +28,17 @@ def test_noise_is_elongated_along_the_ray_and_grows_with_range():
     assert radial[far].std() > 1.5 * tangential[far].std()
 
 
-def test_toy_scene_is_deterministic_and_features_are_32d():
-    a, b = make_scene(3, n_objects=8), make_scene(3, n_objects=8)
-    np.testing.assert_array_equal(a.xyz, b.xyz)
-    np.testing.assert_array_equal(a.instance, b.instance)
-    th = a.instance > 0
-    assert set(np.unique(a.semantic[th])) <= {1, 4, 6, 7} and (a.semantic[~th] >= 9).all()
-    f = oracle_features(a.xyz[th], box_centres(a.xyz[th], a.instance[th]), a.semantic[th])
-    assert f.shape == (th.sum(), 32) and f.dtype == np.float32 and np.isfinite(f).all()
+def test_oracle_inputs_and_features():
+    rng = np.random.default_rng(2)
+    xyz = rng.uniform(-30, 30, size=(3000, 3)).astype(np.float32)
+    sem = rng.choice([1, 6, 9, 13], size=3000)
+    inst = np.where(sem < 9, rng.integers(1, 20, 3000), 0)
+    o = oracle_inputs(xyz, sem, inst, range(1, 9), noise_seed=0)
+    assert o.thing.tolist() == (sem < 9).tolist()
+    m = int(o.thing.sum())
+    assert o.centres.shape == o.gt_centres.shape == (m, 3)
+    assert o.features.shape == (m, 32) and o.features.dtype == np.float32 and np.isfinite(o.features).all()
+    # instance ids are per class: the same id in two classes is two boxes
+    key = sem[o.thing] * 65536 + inst[o.thing]
+    np.testing.assert_array_equal(o.gt_centres, box_centres(xyz[o.thing], key))
+    np.testing.assert_array_equal(o.features[:, :8].argmax(axis=1) + 1, sem[o.thing])

@@ -247,18 +247,19 @@ class Stitcher:
         nz = ids > 0
         if not nz.any():
             return
-        pairs, counts = np.unique(np.stack([ids[nz], sem[nz].astype(np.int64)]), axis=1, return_counts=True)
-        for (tid, c), n in zip(pairs.T.tolist(), counts.tolist(), strict=True):
-            t = self._tracks.setdefault(tid, _Track())
+        tids = ids[nz]
+        keys, counts = np.unique((tids << 32) | sem[nz].astype(np.int64), return_counts=True)
+        for key, n in zip(keys.tolist(), counts.tolist(), strict=True):
+            t = self._tracks.setdefault(key >> 32, _Track())
+            c = key & 0xFFFFFFFF
             t.classes[c] = t.classes.get(c, 0) + n
             t.frames[f] = t.frames.get(f, 0) + n
         if scores:
-            both = np.stack([ids[nz], raw[nz].astype(np.int64)])
-            pairs, counts = np.unique(both, axis=1, return_counts=True)
-            for (tid, r), n in zip(pairs.T.tolist(), counts.tolist(), strict=True):
-                if r in scores:
-                    self._tracks[tid].conf_sum += float(scores[r]) * n
-                    self._tracks[tid].conf_w += n
+            keys, counts = np.unique((tids << 32) | raw[nz].astype(np.int64), return_counts=True)
+            for key, n in zip(keys.tolist(), counts.tolist(), strict=True):
+                if (key & 0xFFFFFFFF) in scores:
+                    self._tracks[key >> 32].conf_sum += float(scores[key & 0xFFFFFFFF]) * n
+                    self._tracks[key >> 32].conf_w += n
 
     def _check(self, v: VolumeLabels) -> tuple[np.ndarray, ...]:
         frames = np.asarray(v.frames, dtype=np.int64)

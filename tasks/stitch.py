@@ -82,13 +82,10 @@ class StitchStage(Stage):
         stitcher, start = self._resume(ctx, fingerprint, windows, out.done(), label_map)
         if stitcher is None:
             stitcher = Stitcher(label_map, min_iou=ctx.config.min_iou)
-        # frames already written by an interrupted run of this block count towards the totals
+        # frames already written by an interrupted run of this block: the runner re-adds their
+        # item records (frames, points), so only the resume count is added here
         before = sorted({f for w in windows[:start] for f in w})
-        carried = {
-            "frames": len(before),
-            "points": int(frame_points[before].sum()) if before else 0,
-            "resumed_frames": len(before),
-        }
+        carried = {"resumed_frames": len(before)}
         scores = self._scores(ctx)
         align = ctx.store.arrays(ctx.sequence, "align")
         fuse = ctx.store.arrays(ctx.sequence, "fuse")

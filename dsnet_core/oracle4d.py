@@ -56,7 +56,7 @@ def _train(labels: np.ndarray, label_map: LabelMap) -> tuple[np.ndarray, np.ndar
     return label_map.to_train(labels & 0xFFFF).astype(np.int64), (labels >> 16).astype(np.int64)
 
 
-def oracle_4d(
+def oracle_volumes(
     scans: Sequence[np.ndarray],
     labels: Sequence[np.ndarray],
     poses: np.ndarray,
@@ -66,9 +66,8 @@ def oracle_4d(
     clusterer: Clusterer | None = None,
     seed: int = 0,
     noise_scale: float = 1.0,
-) -> list[np.ndarray]:
-    """Label a sequence with k-scan volumes: align → noisy volume-wide centres → cluster →
-    fuse → stitch.
+) -> list[VolumeLabels]:
+    """The fused k-scan volumes of a sequence: align → noisy volume-wide centres → cluster → fuse.
 
     Args:
         scans: per frame float32 ``(N_f, 4)`` sensor-frame points.
@@ -78,13 +77,9 @@ def oracle_4d(
             k = 1 gives independent frames).
         clusterer: default BFS (radius 0.3 m) on the regressed centres.
         seed: noise seed; noise_scale: multiplies :data:`dsnet_core.oracle.NOISE_DEFAULTS`.
-
-    Returns:
-        per frame uint32 ``(N_f,)`` labels with sequence-wide ids.
     """
     clusterer = clusterer or get_clusterer(BFSConfig())
-    stitcher = Stitcher(label_map)
-    out: dict[int, np.ndarray] = {}
+    out = []
     for v, window in enumerate(plan_windows(len(scans), k, stride or max(k - 1, 1))):
         frames = list(window)
         vol = build_volume([scans[f] for f in frames], [poses[f] for f in frames], frames)
@@ -92,11 +87,47 @@ def oracle_4d(
         sem = np.concatenate([s for s, _ in sem_inst])
         inst = np.concatenate([i for _, i in sem_inst])
         fsem, finst = _panoptic(vol.points[:, :3], sem, inst, label_map, clusterer, seed + v, noise_scale)
-        stitched = stitcher.add_volume(
-            VolumeLabels(np.asarray(frames), vol.source_frame, vol.source_index, fsem, finst)
-        )
-        out.update((ff.frame, ff.label) for ff in stitched)
-    return [out[f] for f in range(len(scans))]
+        out.append(VolumeLabels(np.asarray(frames), vol.source_frame, vol.source_index, fsem, finst))
+    return out
+
+
+def stitch_sequence(volumes: Sequence[VolumeLabels], label_map: LabelMap) -> list[np.ndarray]:
+    """Stitch a sequence's volumes; per-frame uint32 labels in frame order."""
+    stitcher = Stitcher(label_map)
+    out = {ff.frame: ff.label for v in volumes for ff in stitcher.add_volume(v)}
+    return [out[f] for f in sorted(out)]
+
+
+def oracle_4d(
+    scans: Sequence[np.ndarray],
+    labels: Sequence[np.ndarray],
+    poses: np.ndarray,
+    label_map: LabelMap,
+    k: int,
+    **kwargs,
+) -> list[np.ndarray]:
+    """:func:`oracle_volumes` then :func:`stitch_sequence`: per-frame uint32 labels with
+    sequence-wide ids."""
+    return stitch_sequence(oracle_volumes(scans, labels, poses, label_map, k, **kwargs), label_map)
+
+
+def track_sequence(
+    volumes: Sequence[VolumeLabels],
+    scans: Sequence[np.ndarray],
+    poses: np.ndarray,
+    label_map: LabelMap,
+    **tracker_kwargs,
+) -> list[np.ndarray]:
+    """Link single-scan (k = 1) volumes with :class:`Tracker`; per-frame uint32 labels."""
+    tracker = Tracker(label_map, **tracker_kwargs)
+    out = []
+    for v in volumes:
+        (f,) = v.frames.tolist()
+        sem = np.empty_like(v.semantic)
+        inst = np.empty_like(v.instance)
+        sem[v.source_index], inst[v.source_index] = v.semantic, v.instance
+        out.append(tracker.add_frame(scans[f][:, :3], sem, inst, poses[f]))
+    return out
 
 
 def oracle_tracking(
@@ -109,13 +140,9 @@ def oracle_tracking(
     noise_scale: float = 1.0,
     **tracker_kwargs,
 ) -> list[np.ndarray]:
-    """The baseline: per scan noisy centres → cluster → fuse → :class:`Tracker` (ego-motion
-    compensated, constant velocity). Arguments as :func:`oracle_4d`."""
-    clusterer = clusterer or get_clusterer(BFSConfig())
-    tracker = Tracker(label_map, **tracker_kwargs)
-    out = []
-    for f, scan in enumerate(scans):
-        sem, inst = _train(labels[f], label_map)
-        fsem, finst = _panoptic(scan[:, :3], sem, inst, label_map, clusterer, seed + f, noise_scale)
-        out.append(tracker.add_frame(scan[:, :3], fsem, finst, poses[f]))
-    return out
+    """The baseline: per scan noisy centres → cluster → fuse (:func:`oracle_volumes` with k = 1)
+    → :func:`track_sequence` (ego-motion compensated, constant velocity)."""
+    vols = oracle_volumes(
+        scans, labels, poses, label_map, 1, clusterer=clusterer, seed=seed, noise_scale=noise_scale
+    )
+    return track_sequence(vols, scans, poses, label_map, **tracker_kwargs)

@@ -105,6 +105,29 @@ class TrackTable:
     frame_index: np.ndarray
     frame_points: np.ndarray
 
+    def columns(self, label_map: LabelMap) -> dict[str, list]:
+        """The columns of the store's ``tracks`` table: one row per track, per-frame counts as
+        lists (``frames``, ``frame_points``) and ``raw_class`` through ``learning_map_inv``."""
+        per: dict[int, tuple[list[int], list[int]]] = {int(t): ([], []) for t in self.id.tolist()}
+        for t, f, n in zip(
+            self.frame_track.tolist(), self.frame_index.tolist(), self.frame_points.tolist(), strict=True
+        ):
+            per[t][0].append(f)
+            per[t][1].append(n)
+        return {
+            "id": self.id.tolist(),
+            "class_id": self.semantic.tolist(),
+            "raw_class": label_map.to_raw(self.semantic).tolist(),
+            "first_frame": self.first_frame.tolist(),
+            "last_frame": self.last_frame.tolist(),
+            "n_points": self.n_points.tolist(),
+            "n_frames": self.n_frames.tolist(),
+            "confidence": self.confidence.tolist(),
+            "min_link_iou": self.min_link_iou.tolist(),
+            "frames": [per[t][0] for t in self.id.tolist()],
+            "frame_points": [per[t][1] for t in self.id.tolist()],
+        }
+
 
 @dataclass
 class _Track:
@@ -247,18 +270,20 @@ class Stitcher:
         nz = ids > 0
         if not nz.any():
             return
-        pairs, counts = np.unique(np.stack([ids[nz], sem[nz].astype(np.int64)]), axis=1, return_counts=True)
-        for (tid, c), n in zip(pairs.T.tolist(), counts.tolist(), strict=True):
-            t = self._tracks.setdefault(tid, _Track())
+        tids = ids[nz]
+        keys, counts = np.unique((tids << 32) | sem[nz].astype(np.int64), return_counts=True)
+        for key, n in zip(keys.tolist(), counts.tolist(), strict=True):
+            t = self._tracks.setdefault(key >> 32, _Track())
+            c = key & 0xFFFFFFFF
             t.classes[c] = t.classes.get(c, 0) + n
             t.frames[f] = t.frames.get(f, 0) + n
         if scores:
-            both = np.stack([ids[nz], raw[nz].astype(np.int64)])
-            pairs, counts = np.unique(both, axis=1, return_counts=True)
-            for (tid, r), n in zip(pairs.T.tolist(), counts.tolist(), strict=True):
-                if r in scores:
-                    self._tracks[tid].conf_sum += float(scores[r]) * n
-                    self._tracks[tid].conf_w += n
+            keys, counts = np.unique((tids << 32) | raw[nz].astype(np.int64), return_counts=True)
+            for key, n in zip(keys.tolist(), counts.tolist(), strict=True):
+                score = scores.get(key & 0xFFFFFFFF)
+                if score is not None and math.isfinite(score):
+                    self._tracks[key >> 32].conf_sum += float(score) * n
+                    self._tracks[key >> 32].conf_w += n
 
     def _check(self, v: VolumeLabels) -> tuple[np.ndarray, ...]:
         frames = np.asarray(v.frames, dtype=np.int64)

@@ -82,8 +82,8 @@ class StitchStage(Stage):
         stitcher, start = self._resume(ctx, fingerprint, windows, out.done(), label_map)
         if stitcher is None:
             stitcher = Stitcher(label_map, min_iou=ctx.config.min_iou)
-        # frames already written by an interrupted run: the runner adds their counts from their item
-        # records, so only the number resumed is reported here
+        # frames already written by an interrupted run of this block: the runner re-adds their
+        # item records (frames, points), so only the resume count is added here
         before = sorted({f for w in windows[:start] for f in w})
         carried = {"resumed_frames": len(before)}
         scores = self._scores(ctx)

@@ -234,7 +234,7 @@ def test_track_table():
     data = scene(frames)
     s = Stitcher(LM)
     for start in range(4):
-        scores = {100 * (start + 1) + 2: 0.5, 100 * (start + 1) + 3: 1.0}
+        scores = {100 * (start + 1) + 2: 0.5 if start != 1 else float("nan"), 100 * (start + 1) + 3: 1.0}
         s.add_volume(volume(data, start, 2, scores=scores))
     t = s.track_table()
     assert t.id.tolist() == [1, 2]
@@ -243,6 +243,9 @@ def test_track_table():
     assert t.n_points.tolist() == [90, 54] and t.n_frames.tolist() == [3, 5]
     np.testing.assert_allclose(t.confidence, [0.5, 1.0])
     np.testing.assert_allclose(t.min_link_iou, [1.0, 1.0])
+    cols = t.columns(LM)
+    assert cols["raw_class"] == [10, 30] and cols["frames"] == [[0, 1, 2], [0, 1, 2, 3, 4]]
+    assert cols["frame_points"] == [[30, 30, 30], [10, 10, 10, 12, 12]]
     rows = list(zip(t.frame_track.tolist(), t.frame_index.tolist(), t.frame_points.tolist(), strict=True))
     assert rows == [
         (1, 0, 30),

@@ -201,3 +201,30 @@ def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path):
         a = copy.arrays("00", "stitch").read_item(f)["label"]
         assert np.array_equal(a, store.arrays("00", "stitch").read_item(f)["label"])
     assert copy.read_table("00", "stitch", "tracks").equals(store.read_table("00", "stitch", "tracks"))
+
+
+def test_quarantined_frame_gets_no_label_and_the_rest_stitch(tmp_path):
+    from flows.export import export_semantickitti
+    from tests.logs import make_log
+
+    log = make_log(tmp_path / "log", ("00",), n_frames=6)
+    bad = log / "sequences/00/velodyne/000002.bin"
+    bad.write_bytes(bad.read_bytes()[:-6])
+    store = RunStore(tmp_path / "run")
+    run = run_config(log, make_checkpoint(tmp_path / "ckpt"), scans=2)
+    run["options"]["on_error"] = "skip"
+    store.write_run_config("r1", run)
+    m = {s: run_stage_plain(store, "00", s, run, "r1") for s in STAGES}
+    assert m["align"].plan["windows"] == [[0, 1], [1, 3], [3, 4], [4, 5]]  # frame 2 left out
+    arrays = store.arrays("00", "stitch")
+    assert (
+        arrays.done().tolist() == [True, True, False, True, True, True] and m["stitch"].counts["frames"] == 5
+    )
+    reader = SemanticKittiReader(log)
+    for f in (0, 1, 3, 4, 5):
+        assert arrays.read_item(f)["label"].shape == (reader.scan(reader.frames("00")[f]).shape[0],)
+    tracks = store.read_table("00", "stitch", "tracks").to_pydict()
+    assert all(2 not in frames for frames in tracks["frames"])
+    summary = export_semantickitti(store.uri, tmp_path / "out")
+    assert summary.frames == {"00": 5} and summary.missing == {"00": ["000002"]}
+    assert not (tmp_path / "out/sequences/00/predictions/000002.label").exists()

@@ -168,7 +168,9 @@ run_stage_plain(store, "00", "stitch", store.read_run_config("r1"), "r1", force=
 """
 
 
-def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path):
+def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path, caplog):
+    import logging
+    import os
     import shutil
     import signal
     import subprocess
@@ -176,31 +178,37 @@ def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path):
     from pathlib import Path
 
     store, run, _, m = labelled
-    root = tmp_path / "run"
-    shutil.copytree(store.uri, root)
     repo = Path(__file__).resolve().parents[2]
-    res = subprocess.run(
-        [sys.executable, "-c", KILL_AT_THIRD_VOLUME, str(root)],
-        cwd=repo,
-        env={**__import__("os").environ, "PYTHONPATH": str(repo)},
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert res.returncode == -signal.SIGKILL, res.stderr
-    copy = RunStore(root)
-    assert copy.arrays("00", "stitch").done().tolist() == [True] * 3 + [False] * 3
-    assert copy.read_manifest("00", "stitch").status == "running"
-    d = prepare_stage(copy, "00", "stitch", run, "r1")
-    assert d.action == "resume" and len(d.jobs) == 1
-    resumed = run_stage_plain(copy, "00", "stitch", run, "r1")
-    assert resumed.fingerprint == m["stitch"].fingerprint and resumed.counts == m["stitch"].counts | {
-        "resumed_frames": 3
-    }
-    for f in range(6):
-        a = copy.arrays("00", "stitch").read_item(f)["label"]
-        assert np.array_equal(a, store.arrays("00", "stitch").read_item(f)["label"])
-    assert copy.read_table("00", "stitch", "tracks").equals(store.read_table("00", "stitch", "tracks"))
+    reference = [store.arrays("00", "stitch").read_item(f)["label"] for f in range(6)]
+    for keep_state in (True, False):  # resume from the saved stitcher state, or replay from volume 0
+        root = tmp_path / f"run-{keep_state}"
+        shutil.copytree(store.uri, root)
+        res = subprocess.run(
+            [sys.executable, "-c", KILL_AT_THIRD_VOLUME, str(root)],
+            cwd=repo,
+            env={**os.environ, "PYTHONPATH": str(repo)},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert res.returncode == -signal.SIGKILL, res.stderr
+        copy = RunStore(root)
+        assert copy.arrays("00", "stitch").done().tolist() == [True] * 3 + [False] * 3
+        assert copy.read_manifest("00", "stitch").status == "running"
+        assert copy.root.read_json("sequences/00/stitch/state.json")["volume"] == 1
+        if not keep_state:
+            copy.root.remove("sequences/00/stitch/state.json")
+        d = prepare_stage(copy, "00", "stitch", run, "r1")
+        assert d.action == "resume" and len(d.jobs) == 1
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="tasks.stitch"):
+            resumed = run_stage_plain(copy, "00", "stitch", run, "r1")
+        assert ("resumes after volume 1" in caplog.text) == keep_state
+        assert resumed.fingerprint == m["stitch"].fingerprint and resumed.counts == m["stitch"].counts
+        for f in range(6):
+            assert np.array_equal(copy.arrays("00", "stitch").read_item(f)["label"], reference[f])
+        assert copy.read_table("00", "stitch", "tracks").equals(store.read_table("00", "stitch", "tracks"))
+        assert not copy.root.exists("sequences/00/stitch/state.json")
 
 
 def test_quarantined_frame_gets_no_label_and_the_rest_stitch(tmp_path):

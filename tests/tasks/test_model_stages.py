@@ -53,6 +53,11 @@ def test_infer_matches_the_predictor(labelled):
     assert np.abs(dequantise_probs(got["probs"]) - want.probs.astype(np.float32)).max() <= 1 / 510 + 1e-3
     assert np.array_equal(got["offsets"], want.offsets) and np.array_equal(got["features"], want.features)
     assert m["infer"].counts["points"] == m["align"].counts["points"]
+    # config batch > 1 runs several volumes per forward pass: no cross-talk between them
+    both = Predictor.from_checkpoint(ckpt).predict_batch(
+        [store.arrays("00", "align").read_item(i)["points"] for i in (2, 3)]
+    )
+    assert np.array_equal(both[1].sem, got["sem"]) and np.allclose(both[1].offsets, got["offsets"], atol=1e-5)
     assert m["infer"].counts["thing_points"] > 0  # random weights still predict some thing classes
 
 

@@ -20,12 +20,15 @@ frame, confidence = point-weighted mean of fuse's instance confidence, lowest li
 Stitching is sequential, so a sequence is one block. It is resumable inside the block: after
 each volume's frames are written, the stitcher's state goes to ``stitch/state.json`` (tagged with
 the stage's fingerprint and the volume); a rerun of the block continues after the last saved
-volume whose owned frames are all ``done``, and the last volume is always recomputed (it also
-carries the track table). A killed stitch therefore resumes to identical labels.
+volume whose owned frames are all ``done`` (without a valid state it restarts from the first
+volume) and yields only the frames the runner asks for (those not ``done``; the runner keeps the
+finished frames' counts and rows). The track table rides on the last frame. A killed stitch
+therefore resumes to identical labels and tables.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import posixpath
 from collections.abc import Iterator
@@ -33,6 +36,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+
+log = logging.getLogger(__name__)
 
 
 class StitchConfig(StageConfig):
@@ -71,21 +76,23 @@ class StitchStage(Stage):
         from dsnet_core.labels import load_label_map
         from dsnet_core.stitching import Stitcher, VolumeLabels
 
+        todo = set(items)  # the runner passes only the frames not yet done
+        if not todo:
+            return
         label_map = load_label_map("semantic-kitti")
         windows = [list(w) for w in ctx.plan["windows"]]
         frame_points = np.asarray(ctx.plan["frame_points"], np.int64)
         # the stitcher wants contiguous frame numbers: use ranks among the frames in any window
         absolute = np.array(sorted({f for w in windows for f in w}), np.int64)
-        rank = {int(f): r for r, f in enumerate(absolute.tolist())}
+        lut = np.zeros(int(absolute.max(initial=0)) + 1, np.int64)
+        lut[absolute] = np.arange(absolute.size)
         fingerprint = ctx.store.read_manifest(ctx.sequence, "stitch").fingerprint
         out = ctx.store.arrays(ctx.sequence, "stitch")
         stitcher, start = self._resume(ctx, fingerprint, windows, out.done(), label_map)
         if stitcher is None:
             stitcher = Stitcher(label_map, min_iou=ctx.config.min_iou)
-        # frames already written by an interrupted run of this block: the runner re-adds their
-        # item records (frames, points), so only the resume count is added here
-        before = sorted({f for w in windows[:start] for f in w})
-        carried = {"resumed_frames": len(before)}
+        else:
+            log.info("stitch %s resumes after volume %d from its saved state", ctx.sequence, start - 1)
         scores = self._scores(ctx)
         align = ctx.store.arrays(ctx.sequence, "align")
         fuse = ctx.store.arrays(ctx.sequence, "fuse")
@@ -93,11 +100,8 @@ class StitchStage(Stage):
             w = windows[v]
             src = align.read_item(v, ["source_frame", "source_index"])
             fused = fuse.read_item(v, ["sem", "inst"])
-            ranks = np.array([rank[f] for f in w], np.int64)
-            lut = np.zeros(int(absolute.max()) + 1, np.int64)
-            lut[absolute] = np.arange(absolute.size)
             volume = VolumeLabels(
-                frames=ranks,
+                frames=lut[np.asarray(w, np.int64)],
                 source_frame=lut[src["source_frame"]],
                 source_index=src["source_index"],
                 semantic=fused["sem"].astype(np.int64),
@@ -107,29 +111,23 @@ class StitchStage(Stage):
             )
             finished = stitcher.add_volume(volume)
             for j, ff in enumerate(finished):
+                f = int(absolute[ff.frame])
+                if f not in todo:  # written (and counted) by an interrupted run of this block
+                    continue
                 rows = {}
                 if v == len(windows) - 1 and j == len(finished) - 1:
                     rows = {"tracks": self._track_rows(stitcher, label_map, absolute)}
-                counts = {
-                    "frames": 1,
-                    "points": int(ff.label.shape[0]),
-                    "tracks": len(rows.get("tracks", [])),
-                }
-                for key, n in carried.items():
-                    counts[key] = counts.get(key, 0) + n
-                carried = {}
+                n = int(ff.label.shape[0])
                 yield ItemResult(
-                    int(absolute[ff.frame]),
+                    f,
                     arrays={"label": ff.label},
-                    n_points=int(ff.label.shape[0]),
+                    n_points=n,
                     rows=rows,
-                    counts=counts,
+                    counts={"frames": 1, "points": n, "tracks": len(rows.get("tracks", []))},
                 )
             # runs once the runner has written every frame of this volume (done flags set)
-            written = [int(absolute[ff.frame]) for ff in finished]
             ctx.store.root.write_json(
-                _state_rel(ctx),
-                {"fingerprint": fingerprint, "volume": v, "written": written, "state": stitcher.state_dict()},
+                _state_rel(ctx), {"fingerprint": fingerprint, "volume": v, "state": stitcher.state_dict()}
             )
         ctx.store.root.remove(_state_rel(ctx))
 

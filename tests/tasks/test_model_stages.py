@@ -53,6 +53,11 @@ def test_infer_matches_the_predictor(labelled):
     assert np.abs(dequantise_probs(got["probs"]) - want.probs.astype(np.float32)).max() <= 1 / 510 + 1e-3
     assert np.array_equal(got["offsets"], want.offsets) and np.array_equal(got["features"], want.features)
     assert m["infer"].counts["points"] == m["align"].counts["points"]
+    # config batch > 1 runs several volumes per forward pass: no cross-talk between them
+    both = Predictor.from_checkpoint(ckpt).predict_batch(
+        [store.arrays("00", "align").read_item(i)["points"] for i in (2, 3)]
+    )
+    assert np.array_equal(both[1].sem, got["sem"]) and np.allclose(both[1].offsets, got["offsets"], atol=1e-5)
     assert m["infer"].counts["thing_points"] > 0  # random weights still predict some thing classes
 
 
@@ -168,7 +173,9 @@ run_stage_plain(store, "00", "stitch", store.read_run_config("r1"), "r1", force=
 """
 
 
-def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path):
+def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path, caplog):
+    import logging
+    import os
     import shutil
     import signal
     import subprocess
@@ -176,28 +183,61 @@ def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path):
     from pathlib import Path
 
     store, run, _, m = labelled
-    root = tmp_path / "run"
-    shutil.copytree(store.uri, root)
     repo = Path(__file__).resolve().parents[2]
-    res = subprocess.run(
-        [sys.executable, "-c", KILL_AT_THIRD_VOLUME, str(root)],
-        cwd=repo,
-        env={**__import__("os").environ, "PYTHONPATH": str(repo)},
-        capture_output=True,
-        text=True,
-        timeout=120,
+    reference = [store.arrays("00", "stitch").read_item(f)["label"] for f in range(6)]
+    for keep_state in (True, False):  # resume from the saved stitcher state, or replay from volume 0
+        root = tmp_path / f"run-{keep_state}"
+        shutil.copytree(store.uri, root)
+        res = subprocess.run(
+            [sys.executable, "-c", KILL_AT_THIRD_VOLUME, str(root)],
+            cwd=repo,
+            env={**os.environ, "PYTHONPATH": str(repo)},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert res.returncode == -signal.SIGKILL, res.stderr
+        copy = RunStore(root)
+        assert copy.arrays("00", "stitch").done().tolist() == [True] * 3 + [False] * 3
+        assert copy.read_manifest("00", "stitch").status == "running"
+        assert copy.root.read_json("sequences/00/stitch/state.json")["volume"] == 1
+        if not keep_state:
+            copy.root.remove("sequences/00/stitch/state.json")
+        d = prepare_stage(copy, "00", "stitch", run, "r1")
+        assert d.action == "resume" and len(d.jobs) == 1
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="tasks.stitch"):
+            resumed = run_stage_plain(copy, "00", "stitch", run, "r1")
+        assert ("resumes after volume 1" in caplog.text) == keep_state
+        assert resumed.fingerprint == m["stitch"].fingerprint and resumed.counts == m["stitch"].counts
+        for f in range(6):
+            assert np.array_equal(copy.arrays("00", "stitch").read_item(f)["label"], reference[f])
+        assert copy.read_table("00", "stitch", "tracks").equals(store.read_table("00", "stitch", "tracks"))
+        assert not copy.root.exists("sequences/00/stitch/state.json")
+
+
+def test_quarantined_frame_gets_no_label_and_the_rest_stitch(tmp_path):
+    from flows.export import export_semantickitti
+    from tests.logs import make_log
+
+    log = make_log(tmp_path / "log", ("00",), n_frames=6)
+    bad = log / "sequences/00/velodyne/000002.bin"
+    bad.write_bytes(bad.read_bytes()[:-6])
+    store = RunStore(tmp_path / "run")
+    run = run_config(log, make_checkpoint(tmp_path / "ckpt"), scans=2)
+    run["options"]["on_error"] = "skip"
+    store.write_run_config("r1", run)
+    m = {s: run_stage_plain(store, "00", s, run, "r1") for s in STAGES}
+    assert m["align"].plan["windows"] == [[0, 1], [1, 3], [3, 4], [4, 5]]  # frame 2 left out
+    arrays = store.arrays("00", "stitch")
+    assert (
+        arrays.done().tolist() == [True, True, False, True, True, True] and m["stitch"].counts["frames"] == 5
     )
-    assert res.returncode == -signal.SIGKILL, res.stderr
-    copy = RunStore(root)
-    assert copy.arrays("00", "stitch").done().tolist() == [True] * 3 + [False] * 3
-    assert copy.read_manifest("00", "stitch").status == "running"
-    d = prepare_stage(copy, "00", "stitch", run, "r1")
-    assert d.action == "resume" and len(d.jobs) == 1
-    resumed = run_stage_plain(copy, "00", "stitch", run, "r1")
-    assert resumed.fingerprint == m["stitch"].fingerprint and resumed.counts == m["stitch"].counts | {
-        "resumed_frames": 3
-    }
-    for f in range(6):
-        a = copy.arrays("00", "stitch").read_item(f)["label"]
-        assert np.array_equal(a, store.arrays("00", "stitch").read_item(f)["label"])
-    assert copy.read_table("00", "stitch", "tracks").equals(store.read_table("00", "stitch", "tracks"))
+    reader = SemanticKittiReader(log)
+    for f in (0, 1, 3, 4, 5):
+        assert arrays.read_item(f)["label"].shape == (reader.scan(reader.frames("00")[f]).shape[0],)
+    tracks = store.read_table("00", "stitch", "tracks").to_pydict()
+    assert all(2 not in frames for frames in tracks["frames"])
+    summary = export_semantickitti(store.uri, tmp_path / "out")
+    assert summary.frames == {"00": 5} and summary.missing == {"00": ["000002"]}
+    assert not (tmp_path / "out/sequences/00/predictions/000002.label").exists()

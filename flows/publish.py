@@ -31,10 +31,15 @@ def dataset_key(name: str) -> str:
 
 def write_dashboard(store: RunStore, others: list[str] | None = None) -> str:
     """Build the dashboard of this run (plus ``others`` side by side) into ``ROOT/dashboard.html``."""
+    opts = store.storage_options or None
     if store.root.local:
-        return str(build_dashboard([store.uri, *(others or [])], Path(store.root.path(DASHBOARD))))
+        return str(
+            build_dashboard(
+                [store.uri, *(others or [])], Path(store.root.path(DASHBOARD)), storage_options=opts
+            )
+        )
     with tempfile.TemporaryDirectory() as tmp:
-        page = build_dashboard([store.uri, *(others or [])], Path(tmp) / DASHBOARD, storage_options=None)
+        page = build_dashboard([store.uri, *(others or [])], Path(tmp) / DASHBOARD, storage_options=opts)
         store.root.write_bytes(DASHBOARD, page.read_bytes())
     return store.root.url(DASHBOARD)
 

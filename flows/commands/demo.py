@@ -90,6 +90,8 @@ def demo(
         f"outputs: log {log.resolve()}, run store {run.resolve()}, predictions {pred.resolve()}, "
         f"scores {scores.resolve()}"
     )
+    if (run / "dashboard.html").exists():  # written by the label flow's score report
+        typer.echo(f"dashboard {(run / 'dashboard.html').resolve()}")
 
 
 def score(gt: Path, pred: Path, sequences: list[str]):

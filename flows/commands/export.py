@@ -10,12 +10,16 @@ import typer
 def export(
     root: str = typer.Argument(..., help="Run store root (folder or s3://…)."),
     out: Path = typer.Option(..., "--out", help="Output root (gets sequences/SS/predictions/)."),
-    format: str = typer.Option("semantickitti", "--format", help="semantickitti."),
+    format: str = typer.Option("semantickitti", "--format", help="semantickitti or nuscenes."),
     sequences: str = typer.Option(None, help="Comma-separated sequences (default: every finished one)."),
 ) -> None:
     """Write the stitched labels as SemanticKITTI ``predictions/*.label`` (scorable by ``dsnet eval``)."""
+    if format == "nuscenes":  # Panoptic nuScenes .npz, general classes (flows/export_nuscenes.py)
+        from flows.commands.export_nuscenes import export_nuscenes_command
+
+        return export_nuscenes_command(root, out, sequences)
     if format != "semantickitti":
-        raise typer.BadParameter(f"unknown format {format!r} (available: semantickitti)")
+        raise typer.BadParameter(f"unknown format {format!r} (available: semantickitti, nuscenes)")
     from flows.export import export_semantickitti
     from storage.errors import StoreError
 

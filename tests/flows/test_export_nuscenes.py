@@ -4,6 +4,7 @@ and scored by our evaluator and by nuscenes-devkit's own ``PanopticEval``."""
 from __future__ import annotations
 
 import json
+import subprocess
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import NuScenesPanopticEvaluator, read_panoptic_npz
 from flows.export_nuscenes import export_nuscenes
 from tests.dsnet_core.metrics.nuscenes_peer import load_nuscenes_evaluators
+from tests.flows.conftest import REPO, cli
 from tests.tasks.oracle_stitch import install, score_runs
 
 try:
@@ -49,6 +51,17 @@ def test_export_reads_back_and_scores_like_the_devkit(synth_log, tmp_path):
         (uri,) = score_runs(tmp_path, synth_log, {"run": 0.05}, bev=0)
         result = export_nuscenes(uri, tmp_path / "nusc")
     assert json.loads((tmp_path / "nusc/tokens.json").read_text()) == result.tokens
+    cmd = cli("export", uri, "--out", str(tmp_path / "cli"), "--format", "nuscenes", "--sequences", "01")
+    res = subprocess.run(
+        cmd, cwd=REPO, env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"}, capture_output=True, text=True
+    )
+    assert res.returncode == 0, res.stderr
+    assert "scene 01: 6 panoptic files" in res.stdout
+    for token in result.tokens["01"]:
+        name = f"panoptic/v1.0-trainval/{token}_panoptic.npz"
+        assert np.array_equal(
+            read_panoptic_npz(tmp_path / "cli" / name), read_panoptic_npz(tmp_path / "nusc" / name)
+        )
     assert result.tokens["00"] == [f"00-{i:06d}" for i in range(6)]
     reader = SemanticKittiReader(synth_log)
     ours = NuScenesPanopticEvaluator()

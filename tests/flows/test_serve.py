@@ -108,3 +108,18 @@ def test_serve_without_a_server_says_how_to_start_one(tmp_path):
         text=True,
     )
     assert res.returncode == 2 and "prefect server start --host 127.0.0.1" in res.stderr
+
+
+def test_report_and_dashboard_on_an_s3_store(s3_endpoint, synth_log):
+    import fsspec
+
+    root = "s3://dsnet-test/dash"
+    with pytest.MonkeyPatch.context() as mp:
+        install(mp)
+        (uri,) = score_runs(root, synth_log, {"run": 0.05}, sequences=("00",), block_size=6, bev=1)
+        out = publish(uri, "s3 synth", artifacts=False)
+    assert out["scored"] and out["dashboard"] == f"{uri}/dashboard.html"
+    with fsspec.open(out["dashboard"], "rb") as f:
+        page = f.read().decode()
+    run = read_report_table(RunStore(uri), "score_run").to_pylist()[0]
+    assert f'data-k="run:0:pq" data-v="{run["pq"]!r}"' in page

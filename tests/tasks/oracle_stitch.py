@@ -117,7 +117,7 @@ def score_runs(root, log, runs: dict[str, float], sequences=("00", "01"), block_
 
     out = []
     for name, noise in runs.items():
-        store = RunStore(root / name)
+        store = RunStore(f"{root}/{name}")
         run = {
             "data": str(log),
             "stages": {"stitch": {"noise": noise}},

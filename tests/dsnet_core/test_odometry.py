@@ -36,10 +36,11 @@ def test_drift_against_the_true_trajectory(withheld):
     np.testing.assert_array_equal(est[0], np.eye(4))  # LiDAR-frame poses, Tr = identity
     drift = trajectory_drift(est, truth)
     assert drift["path_m"] > 20
-    # measured: 0.94 % end-point translation, 0.039 deg/m heading, 0.25 m worst position
-    assert drift["end_translation_pct"] < 3.0
-    assert drift["end_rotation_deg_per_m"] < 0.1
-    assert drift["max_position_error_m"] < 0.6
+    # measured on the current synthetic street (porous foliage, seed 5): 2.2 % end-point translation,
+    # 0.076 deg/m heading, 0.61 m worst position over a 27.7 m path (identity poses give ~100 %)
+    assert drift["end_translation_pct"] < 4.0
+    assert drift["end_rotation_deg_per_m"] < 0.15
+    assert drift["max_position_error_m"] < 1.0
 
 
 def test_parked_car_coincides_with_estimated_poses(withheld):

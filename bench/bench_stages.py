@@ -9,13 +9,15 @@ Without ``--checkpoint`` it builds a RANDOM-WEIGHT ``tiny`` checkpoint: the netw
 the real one, but shifting then runs on whatever the random heads call "thing" (often far
 more points than a trained model would), so shift time is a pessimistic bound.
 
-Run: ``.venv/bin/python bench/bench_stages.py [--frames 4] [--scans 1,2] [--checkpoint PATH]``.
+Run: ``.venv/bin/python bench/bench_stages.py [--frames 5] [--scans 1,2,3,4] [--checkpoint PATH]``
+(each k in its own process for its own peak RSS).
 """
 
 from __future__ import annotations
 
 import argparse
 import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -41,8 +43,8 @@ def random_tiny_checkpoint(path: Path) -> Path:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=4)
-    ap.add_argument("--scans", default="1,2")
+    ap.add_argument("--frames", type=int, default=5)
+    ap.add_argument("--scans", default="1,2,3,4")
     ap.add_argument("--checkpoint", type=Path, default=None)
     ap.add_argument("--log", type=Path, default=None, help="existing hdl64 log (default: generate one)")
     args = ap.parse_args()
@@ -60,8 +62,14 @@ def main() -> None:
         generate_log(log, sequences=1, frames=args.frames, seed=0, sensor="hdl64")
         print(f"generated {args.frames} hdl64 frames in {time.perf_counter() - t0:.1f} s ({log})")
     ckpt = args.checkpoint or random_tiny_checkpoint(tmp / "tiny-random")
-    print(f"checkpoint: {ckpt}{'' if args.checkpoint else ' (random weights, tiny preset)'}")
-    for k in [int(s) for s in args.scans.split(",")]:
+    ks = [int(s) for s in args.scans.split(",")]
+    if len(ks) > 1:  # one process per k, so that each k gets its own peak RSS
+        print(f"checkpoint: {ckpt}{'' if args.checkpoint else ' (random weights, tiny preset)'}")
+        for k in ks:
+            cmd = [sys.executable, __file__, "--scans", str(k), "--log", str(log), "--checkpoint", str(ckpt)]
+            subprocess.run(cmd, check=True)
+        return
+    for k in ks:
         store = RunStore(tmp / f"run-k{k}")
         run = {"data": str(log), "stages": {"align": {"scans": k}, "infer": {"checkpoint": str(ckpt)}}}
         store.write_run_config("bench", run)
@@ -83,7 +91,7 @@ def main() -> None:
         thing = store.read_manifest("00", "infer").counts.get("thing_points", 0)
         print(f"  thing points per volume (random heads decide): {thing / max(m.n_items, 1):.0f}")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"\npeak RSS {peak:.0f} MiB; stores under {tmp}")
+    print(f"  peak RSS {peak:.0f} MiB (this k); stores under {tmp}")
 
 
 if __name__ == "__main__":

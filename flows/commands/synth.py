@@ -1,4 +1,5 @@
-"""``dsnet synth`` and ``dsnet demo``: synthetic driving logs. Heavy imports stay in the bodies."""
+"""``dsnet synth``: synthetic driving logs (``_generate`` is shared with ``dsnet demo``). Heavy imports
+stay in the bodies."""
 
 from __future__ import annotations
 
@@ -22,27 +23,6 @@ def synth(
     names = _generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, _fail)
     typer.echo(
         f"wrote {len(names)} sequence(s) × {frames} frames ({sensor}) to {out.resolve() / 'sequences'}"
-    )
-
-
-def demo(
-    out: Path = typer.Option(Path("demo-out"), help="Where to write the demo log."),
-    frames: int = typer.Option(10, min=1, help="Sweeps in the demo sequence."),
-    seed: int = typer.Option(0, help="Seed of the synthetic log."),
-) -> None:
-    """Run the main job on the embedded default: today, generate a synthetic log and describe it."""
-    from dsnet_core.describe import summarize
-    from dsnet_core.io.semantickitti import SemanticKittiReader
-    from flows.cli import _fail, _print_summary
-
-    typer.echo(f"[1/2] generating a synthetic HDL-64 log: 1 sequence × {frames} frames, seed {seed}")
-    _generate(out, 1, frames, seed, "hdl64", 0, True, _fail)
-    typer.echo(f"      wrote {out.resolve() / 'sequences' / '00'}")
-    typer.echo("[2/2] reading it back through the SemanticKITTI reader (every file checked)")
-    _print_summary(summarize(SemanticKittiReader(out)))
-    typer.echo(
-        "Labelling: not yet available. This demo does not run a model or the labelling flow yet; "
-        "it stops after generating and checking the input log."
     )
 
 

@@ -58,7 +58,11 @@ def _peak_mb() -> float:
     return float("nan")
 
 
-def worker(impl: str, width: int, log_root: str, spconv_path: str | None, repeats: int) -> dict:
+_NAIVE = [False]
+
+
+def build(impl: str, width: int, log_root: str, spconv_path: str | None):
+    """(run(feats) -> out features, layers, input feats, frame info) for one implementation."""
     import numpy as np
     import torch
 
@@ -102,13 +106,19 @@ def worker(impl: str, width: int, log_root: str, spconv_path: str | None, repeat
                         out = out.index_add(0, o, x[i] @ weight[k])
                 return out
 
-            sc.sparse_conv = naive_conv
+            if not hasattr(sc, "_own_sparse_conv"):
+                sc._own_sparse_conv = sc.sparse_conv
+                sc.sparse_conv = lambda x, w, b: (naive_conv if _NAIVE[0] else sc._own_sparse_conv)(x, w, b)
 
         def run(x_feats):
-            x = SparseTensor(x_feats, coords, grid.size, 1)
-            for layer in layers:
-                x = layer(x)
-            return x.features
+            _NAIVE[0] = impl == "naive"
+            try:
+                x = SparseTensor(x_feats, coords, grid.size, 1)
+                for layer in layers:
+                    x = layer(x)
+                return x.features
+            finally:
+                _NAIVE[0] = False
 
     else:
         sys.path.append(spconv_path)
@@ -135,39 +145,65 @@ def worker(impl: str, width: int, log_root: str, spconv_path: str | None, repeat
                 x = layer(x)
             return x.features
 
-    def timed(fn):
-        times = []
-        for _ in range(repeats):
-            t = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t)
-        return float(np.median(times))
+    return run, layers, feats, {"voxels": int(coords.shape[0]), "points": int(pts.shape[0])}
 
+
+def _step(run, layers, feats) -> None:
+    f = feats.clone().requires_grad_(True)
+    for layer in layers:
+        layer.weight.grad = None
+    run(f).square().mean().backward()
+
+
+def worker(impl: str, width: int, log_root: str, spconv_path: str | None, repeats: int) -> dict:
+    """Outputs and peak memory of one implementation (its own process)."""
+    import numpy as np
+    import torch
+
+    run, layers, feats, info = build(impl, width, log_root, spconv_path)
     with torch.no_grad():
         out = run(feats)
-    fwd = timed(lambda: run(feats))
     _peak_reset()
     base = _peak_mb()
-
-    def step():
-        f = feats.clone().requires_grad_(True)
-        for layer in layers:
-            layer.weight.grad = None
-        run(f).square().mean().backward()
-
     try:
-        step()
-        train = timed(step)
+        _step(run, layers, feats)
+        train_ok = True
     except RuntimeError as exc:  # spconv's CPU build: backward asks for a CUDA stream
-        train = f"fails: {str(exc).splitlines()[0][:60]}"
+        train_ok = f"fails: {str(exc).splitlines()[0][:60]}"
     peak = _peak_mb() - base
     np.save(Path(log_root) / f"out_{impl}_{width}.npy", out.numpy())
+    return {**info, "peak_mb": peak, "train_ok": train_ok}
+
+
+def timing_worker(impls: list[str], width: int, log_root: str, spconv_path: str | None, repeats: int) -> dict:
+    """Forward and train-step medians of all implementations, interleaved (one process, so that
+    a machine's changing load hits every implementation alike)."""
+    import numpy as np
+    import torch
+
+    built = {impl: build(impl, width, log_root, spconv_path) for impl in impls}
+    fwd = {impl: [] for impl in impls}
+    train: dict = {impl: [] for impl in impls}
+    for _ in range(repeats + 1):  # the first round warms up
+        for impl, (run, layers, feats, _) in built.items():
+            t = time.perf_counter()
+            with torch.no_grad():
+                run(feats)
+            fwd[impl].append(time.perf_counter() - t)
+            if train[impl] is None:
+                continue
+            t = time.perf_counter()
+            try:
+                _step(run, layers, feats)
+                train[impl].append(time.perf_counter() - t)
+            except RuntimeError:
+                train[impl] = None
     return {
-        "voxels": int(coords.shape[0]),
-        "points": int(pts.shape[0]),
-        "fwd_s": fwd,
-        "train_s": train,
-        "peak_mb": peak,
+        impl: {
+            "fwd_s": float(np.median(fwd[impl][1:])),
+            "train_s": float(np.median(train[impl][1:])) if train[impl] else None,
+        }
+        for impl in impls
     }
 
 
@@ -176,8 +212,14 @@ def main() -> None:
     ap.add_argument("--spconv-path", default=None, help="folder where spconv is installed (pip --target)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--timing", nargs=3, help=argparse.SUPPRESS)
     ap.add_argument("--log", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.timing:
+        impls, width, log_root = args.timing
+        res = timing_worker(impls.split(","), int(width), log_root, args.spconv_path, args.repeats)
+        print(json.dumps(res))
+        return
     if args.worker:
         impl, width, log_root = args.worker
         print(json.dumps(worker(impl, int(width), log_root, args.spconv_path, args.repeats)))
@@ -204,9 +246,17 @@ def main() -> None:
                     cmd += ["--spconv-path", args.spconv_path]
                 done = subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=ROOT)
                 res[impl, width] = json.loads(done.stdout.strip().splitlines()[-1])
+            cmd = [sys.executable, __file__, "--timing", ",".join(impls), str(width), tmp]
+            cmd += ["--repeats", str(args.repeats)]
+            if args.spconv_path:
+                cmd += ["--spconv-path", args.spconv_path]
+            done = subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=ROOT)
+            for impl, times in json.loads(done.stdout.strip().splitlines()[-1]).items():
+                res[impl, width].update(times)
         first = res["own", 4]
         print(
-            f"frame: {first['points']} points, {first['voxels']} voxels; 1 thread; median of {args.repeats}"
+            f"frame: {first['points']} points, {first['voxels']} voxels; 1 thread; "
+            f"median of {args.repeats}, interleaved"
         )
         if not args.spconv_path:
             print("spconv not given (--spconv-path): own vs naive only")
@@ -227,6 +277,8 @@ def main() -> None:
                 r = res[impl, width]
                 train = r["train_s"]
                 ok = isinstance(train, float)
+                if not ok:
+                    train = r["train_ok"]
                 cells = [str(width), impl, f"{r['fwd_s']:.3f}"]
                 cells.append(f"{train:.3f}" if ok else "fails")
                 cells.append(f"{r['peak_mb']:.0f}" if ok else "-")

@@ -126,7 +126,7 @@ def main() -> None:
         f"{len(scans)} scans, {n_thing} thing points: dynamic shifting + clustering "
         f"{1e3 * t_ds / len(scans):.0f} ms/scan, PQ^Th {pq_ds:.3f}"
     )
-    for bw in (0.65, 1.2):
+    for bw in (0.65, 0.9, 1.2):  # 0.65: the reference final clustering; 0.9: tuned in the ablation
         sk = SklearnMeanShift(bw)
         t_sk = sum(best_of(lambda s=s, sk=sk: sk.cluster(None, s.centres, None), 1)[0] for s in scans)
         pq_sk = score(scans, sk)[0]

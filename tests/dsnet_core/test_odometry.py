@@ -36,11 +36,13 @@ def test_drift_against_the_true_trajectory(withheld):
     np.testing.assert_array_equal(est[0], np.eye(4))  # LiDAR-frame poses, Tr = identity
     drift = trajectory_drift(est, truth)
     assert drift["path_m"] > 20
-    # measured on the current synthetic street (porous foliage, seed 5): 2.2 % end-point translation,
-    # 0.076 deg/m heading, 0.61 m worst position over a 27.7 m path (identity poses give ~100 %)
-    assert drift["end_translation_pct"] < 4.0
-    assert drift["end_rotation_deg_per_m"] < 0.15
-    assert drift["max_position_error_m"] < 1.0
+    # measured 0.8-2.2 % end-point translation, 0.02-0.08 deg/m heading over 30 frames for
+    # seeds 0-5 (this seed: 2.2 %, 0.076 deg/m, 0.61 m); a failed registration (e.g. ICP locked
+    # onto the ground rings at zero motion) drifts by ~100 %. The bounds leave room for the
+    # generator's scenes to change.
+    assert drift["end_translation_pct"] < 5.0
+    assert drift["end_rotation_deg_per_m"] < 0.2
+    assert drift["max_position_error_m"] < 0.05 * drift["path_m"]
 
 
 def test_parked_car_coincides_with_estimated_poses(withheld):
@@ -58,7 +60,7 @@ def test_parked_car_coincides_with_estimated_poses(withheld):
         ref = cKDTree(pts[0])
         med[name] = float(np.median(np.concatenate([ref.query(p)[0] for p in pts[1:] if len(p)])))
     # distance of later frames' car points to the first frame's car points (sampling-limited):
-    # measured 0.103 m with estimated poses vs 0.089 m with the true ones
+    # measured ~0.1 m with estimated and with true poses (point spacing on the car)
     assert med["true"] < 0.15
     assert med["estimated"] < med["true"] + 0.05
 

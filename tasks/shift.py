@@ -62,23 +62,12 @@ def cluster_volume(clusterer, xyz: np.ndarray, centres: np.ndarray, features: np
         ``(ids int64 (M,), seeds int64 (S,) or None, converged float32 (S, 3) or None)``; the ids
         equal ``clusterer.cluster(xyz, centres, features)``.
     """
-    from scipy.spatial import cKDTree
-
     from dsnet_core.clustering import DynamicShiftClusterer
-    from dsnet_core.meanshift import cluster_seeds
 
-    m = xyz.shape[0]
-    if not isinstance(clusterer, DynamicShiftClusterer) or m < 2:
+    if not isinstance(clusterer, DynamicShiftClusterer) or xyz.shape[0] < 2:
         return clusterer.cluster(xyz, centres, features), None, None
-    seeds, converged = clusterer.shift(xyz, centres, features)  # the same steps as cluster()
-    seed_ids = cluster_seeds(converged, clusterer.final_bandwidth)
-    if seeds.size == m:
-        ids = np.empty(m, dtype=np.int64)
-        ids[seeds] = seed_ids
-    else:
-        _, nn = cKDTree(xyz[seeds]).query(xyz, k=1)
-        ids = seed_ids[nn]
-    return ids, seeds, converged
+    out = clusterer.run(xyz, centres, features)
+    return out.ids, out.seeds, out.converged
 
 
 class ShiftStage(Stage):

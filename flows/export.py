@@ -8,8 +8,11 @@ no Prefect.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from storage.errors import StoreError
 from storage.run import RunStore
@@ -30,6 +33,34 @@ class ExportSummary:
     missing: dict[str, list[str]] = field(default_factory=dict)
 
 
+def stitched_frames(
+    store: RunStore, sequences: list[str] | None = None
+) -> Iterator[tuple[str, str, np.ndarray | None]]:
+    """Yield ``(sequence, frame_id, label)`` for every frame of every sequence whose ``stitch`` is done.
+
+    ``label`` is uint32 ``(N,)`` (raw semantic | instance << 16) or None for a frame without a final
+    label (quarantined). Sequences are visited in sorted order, frames in ingest order.
+
+    Raises:
+        StoreError: a requested sequence has no finished ``stitch``, or none has.
+    """
+    found = False
+    for seq in sorted(sequences if sequences is not None else store.sequences()):
+        m = store.read_manifest(seq, "stitch")
+        if m is None or m.status != "done":
+            if sequences is not None:
+                raise StoreError(store.root.url(store.stage_rel(seq, "stitch")), "stage 'stitch' is not done")
+            continue
+        found = True
+        ids = store.read_table(seq, "ingest", "frames")["frame_id"].to_pylist()
+        arrays = store.arrays(seq, "stitch")
+        done = arrays.done()
+        for index, frame_id in enumerate(ids):
+            yield seq, frame_id, arrays.read_item(index, ["label"])["label"] if done[index] else None
+    if not found:
+        raise StoreError(store.uri, "no sequence has a finished 'stitch' stage to export")
+
+
 def export_semantickitti(
     root: str, out: str | Path, sequences: list[str] | None = None, storage_options: dict | None = None
 ) -> ExportSummary:
@@ -43,27 +74,13 @@ def export_semantickitti(
 
     store = RunStore(root, storage_options)
     out = Path(out)
-    names = sequences if sequences is not None else store.sequences()
     summary = ExportSummary(out=out)
-    for seq in sorted(names):
-        m = store.read_manifest(seq, "stitch")
-        if m is None or m.status != "done":
-            if sequences is not None:
-                raise StoreError(store.root.url(store.stage_rel(seq, "stitch")), "stage 'stitch' is not done")
+    for seq, frame_id, label in stitched_frames(store, sequences):
+        summary.frames.setdefault(seq, 0)
+        summary.missing.setdefault(seq, [])
+        if label is None:
+            summary.missing[seq].append(frame_id)
             continue
-        ids = store.read_table(seq, "ingest", "frames")["frame_id"].to_pylist()
-        arrays = store.arrays(seq, "stitch")
-        done = arrays.done()
-        folder = out / "sequences" / seq / "predictions"
-        folder.mkdir(parents=True, exist_ok=True)
-        summary.frames[seq] = 0
-        summary.missing[seq] = []
-        for index, frame_id in enumerate(ids):
-            if not done[index]:
-                summary.missing[seq].append(frame_id)
-                continue
-            write_label(folder / f"{frame_id}.label", arrays.read_item(index, ["label"])["label"])
-            summary.frames[seq] += 1
-    if not summary.frames:
-        raise StoreError(store.uri, "no sequence has a finished 'stitch' stage to export")
+        write_label(out / "sequences" / seq / "predictions" / f"{frame_id}.label", label)
+        summary.frames[seq] += 1
     return summary

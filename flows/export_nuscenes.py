@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from storage.errors import StoreError
+from flows.export import stitched_frames
 from storage.run import RunStore
 
 
@@ -43,26 +43,16 @@ def export_nuscenes(
     store = RunStore(root, storage_options)
     folder = Path(out) / "panoptic" / version
     result = NuScenesExport(folder)
-    for seq in sorted(sequences if sequences is not None else store.sequences()):
-        m = store.read_manifest(seq, "stitch")
-        if m is None or m.status != "done":
-            if sequences is not None:
-                raise StoreError(store.root.url(store.stage_rel(seq, "stitch")), "stage 'stitch' is not done")
+    encoders: dict[str, SceneEncoder] = {}
+    for seq, frame_id, label in stitched_frames(store, sequences):
+        if seq not in encoders:
+            encoders[seq] = SceneEncoder(seq)
+        tokens = result.tokens.setdefault(seq, [])
+        if label is None:
             continue
-        ids = store.read_table(seq, "ingest", "frames")["frame_id"].to_pylist()
-        arrays = store.arrays(seq, "stitch")
-        done = arrays.done()
-        encoder = SceneEncoder(seq)
-        result.tokens[seq] = []
-        for index, frame_id in enumerate(ids):
-            if not done[index]:
-                continue
-            token = f"{seq}-{frame_id}"
-            label = arrays.read_item(index, ["label"])["label"]
-            write_panoptic_npz(folder / f"{token}_panoptic.npz", encoder.encode(label))
-            result.tokens[seq].append(token)
-    if not result.tokens:
-        raise StoreError(store.uri, "no sequence has a finished 'stitch' stage to export")
+        token = f"{seq}-{frame_id}"
+        write_panoptic_npz(folder / f"{token}_panoptic.npz", encoders[seq].encode(label))
+        tokens.append(token)
     folder.mkdir(parents=True, exist_ok=True)
     (Path(out) / "tokens.json").write_text(json.dumps(result.tokens, indent=1))
     return result

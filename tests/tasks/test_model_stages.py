@@ -194,7 +194,7 @@ def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path, c
             env={**os.environ, "PYTHONPATH": str(repo)},
             capture_output=True,
             text=True,
-            timeout=120,
+            timeout=300,
         )
         assert res.returncode == -signal.SIGKILL, res.stderr
         copy = RunStore(root)

@@ -25,6 +25,7 @@ from dsnet_core.model.checkpoint import (
     CARD,
     ModelCard,
     class_map_of,
+    code_version,
     load_checkpoint,
     read_card,
     save_checkpoint,
@@ -149,6 +150,7 @@ class Trainer:
                 metrics=[],
             )
         self.card.training_data["train_config"] = asdict(config)
+        self.card.code_version = code_version()  # the code that trains now (a resumed card keeps the last)
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 
     # -- the schedule ----------------------------------------------------------------------

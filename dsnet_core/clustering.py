@@ -191,10 +191,15 @@ class BFSClusterer:
         return _nearest_fill(xyz, ids) if self.assign_noise else ids
 
 
-class DynamicShiftConfig(BaseModel):
-    """Dynamic shifting. Weights come from a checkpoint (see :func:`get_clusterer`)."""
+class _ClustererConfig(BaseModel):
+    """Base of the clusterer configs: frozen, unknown keys rejected."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DynamicShiftConfig(_ClustererConfig):
+    """Dynamic shifting. Weights come from a checkpoint (see :func:`get_clusterer`)."""
+
     kind: Literal["dynamic_shift"] = "dynamic_shift"
     bandwidths: tuple[float, ...] = BANDWIDTHS_3D
     iterations: int = Field(4, ge=0)
@@ -210,29 +215,25 @@ class DynamicShiftConfig(BaseModel):
         return cls(**{"bandwidths": BANDWIDTHS_4D, "n_seeds": 20_000, **overrides})
 
 
-class MeanShiftConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class MeanShiftConfig(_ClustererConfig):
     kind: Literal["meanshift"] = "meanshift"
     bandwidth: float = Field(1.2, gt=0)
 
 
-class DBSCANConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class DBSCANConfig(_ClustererConfig):
     kind: Literal["dbscan"] = "dbscan"
     eps: float = Field(0.4, gt=0)
     min_samples: int = Field(10, ge=1)
     assign_noise: bool = True
 
 
-class HDBSCANConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class HDBSCANConfig(_ClustererConfig):
     kind: Literal["hdbscan"] = "hdbscan"
     min_cluster_size: int = Field(20, ge=2)
     assign_noise: bool = True
 
 
-class BFSConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class BFSConfig(_ClustererConfig):
     kind: Literal["bfs"] = "bfs"
     radius: float = Field(0.3, gt=0)
     min_size: int = Field(5, ge=1)

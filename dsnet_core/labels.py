@@ -59,11 +59,17 @@ class LabelMap:
     def max_raw_id(self) -> int:
         return max(self.learning_map)
 
-    def lut(self) -> np.ndarray:
-        """Raw id -> train id lookup table, ``(max_raw_id + 1,) int32``; unknown raw ids -> -1."""
-        table = np.full(self.max_raw_id + 1, -1, dtype=np.int32)
+    def lut(self, size: int | None = None, fill: int = -1) -> np.ndarray:
+        """Raw id -> train id lookup table, ``(size,) int32``.
+
+        Args:
+            size: table length (default ``max_raw_id + 1``; ``1 << 16`` covers every raw id).
+            fill: train id of raw ids the map does not know (-1 marks them; 0 ignores them).
+        """
+        table = np.full(self.max_raw_id + 1 if size is None else size, fill, dtype=np.int32)
         for raw, train in self.learning_map.items():
-            table[raw] = train
+            if 0 <= raw < table.size:
+                table[raw] = train
         return table
 
     def inv_lut(self) -> np.ndarray:

@@ -44,11 +44,7 @@ def general_lut(source: LabelMap, target: LabelMap | None = None) -> np.ndarray:
         if train in source.things and challenge not in target.things:
             raise ConfigError(f"semantic-kitti-to-nuscenes.yaml: thing {name} mapped to a stuff class")
         by_train[train] = int(general)
-    lut = np.zeros(1 << 16, dtype=np.int64)
-    for raw, train in source.learning_map.items():
-        if 0 <= raw < 1 << 16:
-            lut[raw] = by_train[train]
-    return lut
+    return by_train[source.lut(1 << 16, fill=0)]
 
 
 class SceneEncoder:
@@ -64,9 +60,7 @@ class SceneEncoder:
         self.source = source or load_label_map("semantic-kitti")
         self.target = load_label_map("panoptic-nuscenes")
         self.lut = general_lut(self.source, self.target)
-        self._thing = np.zeros(66, dtype=bool)
-        for general, challenge in self.target.learning_map.items():
-            self._thing[general] = challenge in self.target.things
+        self._thing = self.target.is_thing()[self.target.lut(66, fill=0)]  # general class -> thing?
         self._ids: dict[int, int] = {}  # general << 32 | source id -> nuScenes instance
         self._count = np.zeros(66, dtype=np.int64)  # instances given per general class
 

@@ -73,11 +73,7 @@ class KittiDecoder:
     """SemanticKITTI raw labels: class = ``learning_map[v & 0xFFFF]``, id = ``v >> 16``."""
 
     def __init__(self, label_map: LabelMap) -> None:
-        lut = np.zeros(1 << 16, dtype=np.int64)
-        for raw, train in label_map.learning_map.items():
-            if 0 <= raw < 1 << 16:
-                lut[raw] = train
-        self.lut = lut
+        self.lut = label_map.lut(1 << 16, fill=0).astype(np.int64)
 
     def classes(self, labels: np.ndarray) -> np.ndarray:
         return self.lut[(labels & np.uint64(0xFFFF)).astype(np.int64)]

@@ -28,11 +28,7 @@ class NuScenesGtDecoder:
     """Ground truth: class = ``learning_map[label // 1000]``, id = the whole label."""
 
     def __init__(self, label_map: LabelMap) -> None:
-        lut = np.zeros(66, dtype=np.int64)  # uint16 // 1000 ≤ 65
-        for general, challenge in label_map.learning_map.items():
-            if 0 <= general < lut.size:
-                lut[general] = challenge
-        self.lut = lut
+        self.lut = label_map.lut(66, fill=0).astype(np.int64)  # uint16 // 1000 ≤ 65
 
     def classes(self, labels: np.ndarray) -> np.ndarray:
         return self.lut[(labels // np.uint64(1000)).astype(np.int64)]

@@ -41,10 +41,7 @@ def label_colours(labels: np.ndarray, label_map: LabelMap) -> np.ndarray:
     for raw, bgr in label_map.color_map.items():
         if 0 <= raw < 1 << 16:
             lut[raw] = (np.asarray(bgr[::-1], dtype=np.float64) * 0.45).astype(np.uint8)
-    train = np.zeros(1 << 16, dtype=np.int64)
-    for raw, t in label_map.learning_map.items():
-        if 0 <= raw < 1 << 16:
-            train[raw] = t
+    train = label_map.lut(1 << 16, fill=0)
     out = lut[sem]
     thing = np.isin(train[sem], np.asarray(label_map.things)) & (inst > 0)
     out[thing] = instance_colour(inst[thing] * 131 + sem[thing])

@@ -40,3 +40,17 @@ def make_checkpoint(path: Path, seed: int = 0, shift_weights: bool = True) -> Pa
     if shift_weights:
         save_shift_weights(path, DynamicShift().eval())
     return Path(path)
+
+
+# Prelude of a subprocess script: SIGKILLs its own process when stitching reaches the third volume.
+KILL_STITCH_AT_THIRD_VOLUME = """
+import os, signal, sys
+import dsnet_core.stitching as st
+_orig, _calls = st.Stitcher.add_volume, [0]
+def add_volume(self, volume):
+    _calls[0] += 1
+    if _calls[0] == 3:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return _orig(self, volume)
+st.Stitcher.add_volume = add_volume
+"""

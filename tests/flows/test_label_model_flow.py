@@ -14,7 +14,7 @@ from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from storage.run import RunStore
 from tests.flows.conftest import REPO
-from tests.model_helpers import make_checkpoint
+from tests.model_helpers import KILL_STITCH_AT_THIRD_VOLUME, make_checkpoint
 
 LM = load_label_map("semantic-kitti")
 MODEL = ("infer", "shift", "fuse", "stitch")
@@ -147,20 +147,14 @@ def test_label_3d_ids_from_one_counter_export_and_eval(prefect_api_url, synth_lo
     assert 0 <= data["miou"] <= 1 and 0 <= data["lstq"] <= 1 and set(data["per_class"]) >= {"car", "road"}
 
 
-KILL_AT_THIRD_VOLUME = """
-import os, signal, sys
-import dsnet_core.stitching as st
-_orig, _calls = st.Stitcher.add_volume, [0]
-def add_volume(self, volume):
-    _calls[0] += 1
-    if _calls[0] == 3:
-        os.kill(os.getpid(), signal.SIGKILL)
-    return _orig(self, volume)
-st.Stitcher.add_volume = add_volume
+KILL_AT_THIRD_VOLUME = (
+    KILL_STITCH_AT_THIRD_VOLUME
+    + """
 sys.argv = ["dsnet", *sys.argv[1:]]
 from flows.cli import main
 main()
 """
+)
 
 
 @pytest.mark.slow

@@ -13,7 +13,7 @@ from dsnet_core.model.inference import Predictor
 from storage.run import RunStore
 from tasks.infer import dequantise_probs
 from tasks.runner import prepare_stage, run_stage_plain
-from tests.model_helpers import make_checkpoint
+from tests.model_helpers import KILL_STITCH_AT_THIRD_VOLUME, make_checkpoint
 
 LM = load_label_map("semantic-kitti")
 STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
@@ -155,22 +155,15 @@ def test_clusterer_change_and_new_checkpoint_reprocess_only_downstream(labelled,
     ) != (SPECS["infer"].inputs(make_context(store, "00", "infer", run)))
 
 
-KILL_AT_THIRD_VOLUME = """
-import os, signal, sys
-import dsnet_core.stitching as st
+KILL_AT_THIRD_VOLUME = (
+    KILL_STITCH_AT_THIRD_VOLUME
+    + """
 from storage.run import RunStore
 from tasks.runner import run_stage_plain
-
-_orig, _calls = st.Stitcher.add_volume, [0]
-def add_volume(self, volume):
-    _calls[0] += 1
-    if _calls[0] == 3:
-        os.kill(os.getpid(), signal.SIGKILL)
-    return _orig(self, volume)
-st.Stitcher.add_volume = add_volume
 store = RunStore(sys.argv[1])
 run_stage_plain(store, "00", "stitch", store.read_run_config("r1"), "r1", force=True)
 """
+)
 
 
 def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path, caplog):

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dsnet_core.align import to_reference
 from dsnet_core.errors import PoseFormatError
 from dsnet_core.io.reader import FrameRef, LogReader
 from dsnet_core.labels import LabelMap
@@ -65,8 +66,7 @@ def load_sample(reader: LogReader, refs: list[FrameRef], label_map: LabelMap) ->
         if label is None:
             label = np.zeros(len(pts), np.uint32)
         if pose_t is not None and ref is not target:
-            rel = np.linalg.inv(pose_t) @ reader.pose(ref)
-            pts[:, :3] = (pts[:, :3].astype(np.float64) @ rel[:3, :3].T + rel[:3, 3]).astype(np.float32)
+            pts[:, :3] = to_reference(pts[:, :3], reader.pose(ref), pose_t).astype(np.float32)
         sem = label_map.to_train(label & 0xFFFF).astype(np.int64)
         ids = (label >> 16).astype(np.int64)
         pts_l.append(pts)

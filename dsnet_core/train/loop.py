@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -62,6 +63,10 @@ class TrainConfig:
         seed: the run's seed (augmentation and shuffling per epoch derive from it).
         augment: apply yaw/flip/scale/translation augmentation.
         device: "cpu" or "cuda".
+        schedule: "cosine" (per epoch, from ``lr`` down to ``min_lr_ratio * lr`` over each stage's
+            epochs) or "constant". The rate is a function of the epoch index only, so a resumed run
+            trains exactly as an uninterrupted one.
+        min_lr_ratio: the cosine schedule's floor as a fraction of ``lr``.
     """
 
     stage: str = "all"
@@ -72,6 +77,19 @@ class TrainConfig:
     seed: int = 0
     augment: bool = True
     device: str = "cpu"
+    schedule: str = "cosine"
+    min_lr_ratio: float = 0.02
+
+    def __post_init__(self) -> None:
+        if self.schedule not in ("cosine", "constant"):
+            raise ConfigError(f"unknown learning-rate schedule '{self.schedule}' (cosine or constant)")
+
+    def epoch_lr(self, epoch: int, total: int) -> float:
+        """Learning rate of (0-based) ``epoch`` out of ``total`` in a stage."""
+        if self.schedule == "constant" or total <= 1:
+            return self.lr
+        floor = self.lr * self.min_lr_ratio
+        return floor + 0.5 * (self.lr - floor) * (1.0 + math.cos(math.pi * epoch / (total - 1)))
 
     def stages(self) -> list[str]:
         if self.stage == "all":
@@ -168,9 +186,12 @@ class Trainer:
                 log.info("restored optimiser state of %s epoch %d", stage, done)
             for epoch in range(done, total):
                 t0 = time.perf_counter()
+                for group in opt.param_groups:
+                    group["lr"] = self.cfg.epoch_lr(epoch, total)
                 loss = self._train_epoch(stage, epoch, opt, on_step)
                 record = {"stage": stage, "epoch": epoch + 1, "train_loss": loss, **self.validate()}
                 record["seconds"] = round(time.perf_counter() - t0, 2)
+                record["lr"] = self.cfg.epoch_lr(epoch, total)
                 self.card.metrics.append(record)
                 self.card.epochs[stage] = epoch + 1
                 self._save(stage, epoch + 1, opt)
@@ -325,7 +346,7 @@ def _with_points(s: Sample, points: np.ndarray) -> Sample:
 def write_metrics_table(out: Path, metrics: list[dict]) -> None:
     """``metrics.json`` (full records) and ``metrics.csv`` (scalars) beside the checkpoint."""
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    cols = ["stage", "epoch", "train_loss", "val_miou", "val_offset_l1", "val_shift_l1", "seconds"]
+    cols = ["stage", "epoch", "lr", "train_loss", "val_miou", "val_offset_l1", "val_shift_l1", "seconds"]
     with open(out / "metrics.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
         w.writeheader()

@@ -1,3 +1,4 @@
+import itertools
 import math
 from dataclasses import replace
 
@@ -50,7 +51,8 @@ def test_resumed_training_equals_uninterrupted(log, tmp_path):
     for (k, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
         assert torch.equal(x, y), k
     rows = (tmp_path / "b" / "metrics.csv").read_text().splitlines()
-    assert rows[0] == "stage,epoch,train_loss,val_miou,val_offset_l1,val_shift_l1,seconds" and len(rows) == 3
+    assert rows[0] == "stage,epoch,lr,train_loss,val_miou,val_offset_l1,val_shift_l1,seconds"
+    assert len(rows) == 3
 
 
 def test_existing_checkpoint_needs_resume(log, tmp_path):
@@ -91,3 +93,19 @@ def test_tiny_model_overfits_two_frames(log, tmp_path):
     # the instance head learns while the backbone stays frozen (semantics unchanged)
     assert off[-1]["val_offset_l1"] < 0.8 * sem[-1]["val_offset_l1"]
     assert off[-1]["val_miou"] == sem[-1]["val_miou"]
+
+
+def test_cosine_schedule_runs_from_lr_to_the_floor():
+    cfg = TrainConfig(lr=2e-3, min_lr_ratio=0.05)
+    rates = [cfg.epoch_lr(e, 10) for e in range(10)]
+    assert rates[0] == pytest.approx(2e-3)
+    assert rates[-1] == pytest.approx(1e-4)
+    assert all(a > b for a, b in itertools.pairwise(rates))
+    assert rates[5] == pytest.approx(1e-4 + 0.5 * 1.9e-3 * (1 + math.cos(math.pi * 5 / 9)))
+    assert TrainConfig(lr=1e-3, schedule="constant").epoch_lr(7, 10) == 1e-3
+    assert TrainConfig(lr=1e-3).epoch_lr(0, 1) == 1e-3
+
+
+def test_unknown_schedule_is_a_config_error():
+    with pytest.raises(ConfigError, match="unknown learning-rate schedule 'step'"):
+        TrainConfig(schedule="step")

@@ -115,6 +115,9 @@ class Trainer:
         label_map: class map.
         config: schedule.
         resume: continue from the checkpoint in ``out``.
+        init_from: fine-tune: start a new checkpoint in ``out`` from this checkpoint's weights (its
+            architecture replaces ``model_config``; the new card starts with no epochs and records
+            where it came from). Ignored when resuming an existing ``out``.
     """
 
     def __init__(
@@ -128,6 +131,7 @@ class Trainer:
         label_map: LabelMap,
         config: TrainConfig,
         resume: bool = False,
+        init_from: str | Path | None = None,
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), config, label_map
         self.stages = config.stages()
@@ -149,7 +153,19 @@ class Trainer:
             log.info("resuming from %s (epochs done: %s)", self.out, self.card.epochs)
         else:
             torch.manual_seed(config.seed)
-            self.model = DSNet(model_config).to(self.device)
+            source = None
+            if init_from is not None:
+                self.model, parent = load_checkpoint(init_from, self.device, expect_label_map=label_map)
+                model_config = self.model.config
+                source = {
+                    "path": str(Path(init_from).resolve()),
+                    "weights_sha256": parent.weights_sha256,
+                    "epochs": parent.epochs,
+                    "scans": parent.training_data.get("scans"),
+                }
+                log.info("fine-tuning from %s (epochs %s)", init_from, parent.epochs)
+            else:
+                self.model = DSNet(model_config).to(self.device)
             counts = class_counts(reader, self.train_vols, label_map)
             self.card = ModelCard(
                 architecture=model_config.to_dict(),
@@ -163,6 +179,7 @@ class Trainer:
                     "class_points": counts.tolist(),
                     "val_root": str(val_reader.root),
                     "val_sequences": list(val_sequences),
+                    **({"init_from": source} if source else {}),
                 },
                 epochs={},
                 metrics=[],

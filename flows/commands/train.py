@@ -29,6 +29,12 @@ def train(
     epochs: str = typer.Option("10", help="Epochs per stage: N, or e.g. 'semantic=20,offset=5'."),
     device: str = typer.Option("cpu", help="cpu | cuda"),
     resume: bool = typer.Option(False, "--resume", help="Continue the checkpoint in --out."),
+    init_from: Path = typer.Option(
+        None,
+        "--init-from",
+        help="Fine-tune: start --out from this checkpoint's weights and architecture (e.g. a 3D model "
+        "fine-tuned on --scans 2 volumes with --epochs semantic=0,offset=2,shift=2).",
+    ),
     preset: str = typer.Option("tiny", help="Model width preset: tiny | small | paper."),
     sequences: str = typer.Option(None, help="Comma-separated training sequences (default: all)."),
     val_data: Path = typer.Option(None, help="Validation log root (default: DATA)."),
@@ -86,7 +92,9 @@ def train(
             if len(cells) != 3:
                 raise typer.BadParameter(f"--grid wants three cell counts 'ρ,φ,z', got '{grid}'")
             model_config = replace(model_config, grid=replace(model_config.grid, size=cells))
-        trainer = Trainer(out, model_config, reader, seqs, val_reader, vseqs, label_map, cfg, resume=resume)
+        trainer = Trainer(
+            out, model_config, reader, seqs, val_reader, vseqs, label_map, cfg, resume, init_from
+        )
         with Progress(
             TextColumn("{task.description}"),
             BarColumn(),

@@ -109,3 +109,22 @@ def test_cosine_schedule_runs_from_lr_to_the_floor():
 def test_unknown_schedule_is_a_config_error():
     with pytest.raises(ConfigError, match="unknown learning-rate schedule 'step'"):
         TrainConfig(schedule="step")
+
+
+def test_fine_tune_starts_a_new_card_from_another_checkpoint(log, tmp_path):
+    trainer(log, tmp_path / "3d", stage="semantic", epochs={"semantic": 1}).run()
+    parent, parent_card = load_checkpoint(tmp_path / "3d")
+    reader = SemanticKittiReader(log)
+    cfg = TrainConfig(augment=False, lr=0.01, stage="offset", epochs={"offset": 1}, scans=2)
+    card = Trainer(
+        tmp_path / "4d", PRESETS["paper"], reader, ["00"], reader, ["00"], LM, cfg, init_from=tmp_path / "3d"
+    ).run()
+    assert card.epochs == {"offset": 1}
+    assert card.architecture == parent_card.architecture  # the parent's, not the preset passed in
+    source = card.training_data["init_from"]
+    assert source["weights_sha256"] == parent_card.weights_sha256 and source["epochs"] == {"semantic": 1}
+    assert card.training_data["scans"] == 2
+    child, _ = load_checkpoint(tmp_path / "4d")
+    before, after = parent.state_dict(), child.state_dict()
+    assert all(torch.equal(before[k], after[k]) for k in before if not k.startswith("ins_head."))
+    assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith("ins_head."))

@@ -9,17 +9,24 @@ discriminated union on ``kind``) through :func:`get_clusterer`; algorithms never
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, NamedTuple, Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
+from dsnet_core.clustering_config import (  # noqa: F401  (re-exported: configs live beside the algorithms' registry)
+    BFSConfig,
+    ClustererConfig,
+    DBSCANConfig,
+    DynamicShiftConfig,
+    HDBSCANConfig,
+    MeanShiftConfig,
+)
 from dsnet_core.components import dbscan, radius_components
 from dsnet_core.fps import farthest_point_sampling
 from dsnet_core.meanshift import cluster_seeds, mean_shift
-from dsnet_core.shifting import BANDWIDTHS_3D, BANDWIDTHS_4D, DynamicShift
+from dsnet_core.shifting import DynamicShift
 
 
 class Clusterer(Protocol):
@@ -190,60 +197,6 @@ class BFSClusterer:
         ids = _ranked_ids(labels)
         return _nearest_fill(xyz, ids) if self.assign_noise else ids
 
-
-class _ClustererConfig(BaseModel):
-    """Base of the clusterer configs: frozen, unknown keys rejected."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class DynamicShiftConfig(_ClustererConfig):
-    """Dynamic shifting. Weights come from a checkpoint (see :func:`get_clusterer`)."""
-
-    kind: Literal["dynamic_shift"] = "dynamic_shift"
-    bandwidths: tuple[float, ...] = BANDWIDTHS_3D
-    iterations: int = Field(4, ge=0)
-    feature_dim: int = Field(32, ge=1)
-    n_seeds: int = Field(10_000, ge=1)
-    final_bandwidth: float = Field(0.65, gt=0)
-    kernel: Literal["dense", "neighbors"] = "neighbors"
-    device: str = "cpu"
-
-    @classmethod
-    def for_4d(cls, **overrides) -> DynamicShiftConfig:
-        """The 4D-DS-Net setting: bandwidths (0.2, 1.8, 3.4) m and 20 000 seeds."""
-        return cls(**{"bandwidths": BANDWIDTHS_4D, "n_seeds": 20_000, **overrides})
-
-
-class MeanShiftConfig(_ClustererConfig):
-    kind: Literal["meanshift"] = "meanshift"
-    bandwidth: float = Field(1.2, gt=0)
-
-
-class DBSCANConfig(_ClustererConfig):
-    kind: Literal["dbscan"] = "dbscan"
-    eps: float = Field(0.4, gt=0)
-    min_samples: int = Field(10, ge=1)
-    assign_noise: bool = True
-
-
-class HDBSCANConfig(_ClustererConfig):
-    kind: Literal["hdbscan"] = "hdbscan"
-    min_cluster_size: int = Field(20, ge=2)
-    assign_noise: bool = True
-
-
-class BFSConfig(_ClustererConfig):
-    kind: Literal["bfs"] = "bfs"
-    radius: float = Field(0.3, gt=0)
-    min_size: int = Field(5, ge=1)
-    assign_noise: bool = True
-
-
-ClustererConfig = Annotated[
-    DynamicShiftConfig | MeanShiftConfig | DBSCANConfig | HDBSCANConfig | BFSConfig,
-    Field(discriminator="kind"),
-]
 
 CLUSTERERS: dict[str, type] = {
     "dynamic_shift": DynamicShiftClusterer,

@@ -34,5 +34,13 @@ class SequenceLayoutError(DataFormatError):
     """A sequence folder is empty, missing, or a path escapes the dataset root."""
 
 
+class CheckpointError(DataFormatError):
+    """A checkpoint is missing, unreadable or tampered with."""
+
+
+class CheckpointMismatchError(CheckpointError):
+    """A checkpoint's architecture or class map differs from what the caller expects."""
+
+
 class ConfigError(DsnetError):
     """A configuration file or value is invalid."""

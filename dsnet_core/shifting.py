@@ -23,10 +23,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from dsnet_core.clustering_config import BANDWIDTHS_3D, BANDWIDTHS_4D  # noqa: F401  (re-exported)
 from dsnet_core.radius import radius_sums
 
-BANDWIDTHS_3D: tuple[float, ...] = (0.2, 1.7, 3.2)
-BANDWIDTHS_4D: tuple[float, ...] = (0.2, 1.8, 3.4)
 Kernel = Literal["dense", "neighbors"]
 
 

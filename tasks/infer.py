@@ -19,7 +19,7 @@ from collections.abc import Iterator
 import numpy as np
 from pydantic import Field
 
-from dsnet_core.model.checkpoint import CheckpointMismatchError
+from dsnet_core.errors import CheckpointMismatchError
 from storage.contract import INS_DIM, N_CLASSES
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 

@@ -22,7 +22,7 @@ from collections.abc import Iterator
 import numpy as np
 from pydantic import Field
 
-from dsnet_core.clustering import ClustererConfig, DynamicShiftConfig
+from dsnet_core.clustering_config import ClustererConfig, DynamicShiftConfig
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
 log = logging.getLogger(__name__)

@@ -23,21 +23,13 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from dsnet_core.errors import DataFormatError
+from dsnet_core.errors import CheckpointError, CheckpointMismatchError
 from dsnet_core.labels import LabelMap
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
 
 FORMAT = "dsnet-checkpoint/1"
 WEIGHTS, CARD = "model.safetensors", "card.json"
-
-
-class CheckpointError(DataFormatError):
-    """A checkpoint is missing, unreadable or tampered with."""
-
-
-class CheckpointMismatchError(CheckpointError):
-    """A checkpoint's architecture or class map differs from what the caller expects."""
 
 
 @dataclass

@@ -126,3 +126,15 @@ def test_resume_reprocess_and_force(log, tmp_path):
     assert new_ingest.fingerprint != ingest.fingerprint
     # force recomputes a finished stage
     assert prepare_stage(store, "00", "ingest", run3, "r5", force=True).action == "fresh"
+
+
+def test_stage_registry_imports_without_torch():
+    """`dsnet status` and the CLI's planning import every stage: torch loads only when a model runs."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = "import sys, tasks.registry, tasks.shift, tasks.infer; print('torch' in sys.modules)"
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -60,19 +60,26 @@ class InferStage(Stage):
     version = "1"
     Config = InferConfig
 
-    def inputs(self, ctx: StageContext) -> str:
-        from dsnet_core.model.bundle import checkpoint_digest, resolve_checkpoint
-
-        return "checkpoint:" + checkpoint_digest(resolve_checkpoint(ctx.config.checkpoint))
-
-    def plan(self, ctx: StageContext) -> Plan:
+    @staticmethod
+    def checkpoint(ctx: StageContext):
+        """The checkpoint folder: the configured one, else the bundled model for align's k."""
         from dsnet_core.model.bundle import resolve_checkpoint
 
+        align = ctx.store.read_manifest(ctx.sequence, "align")
+        scans = max((len(w) for w in align.plan.get("windows", [])), default=1) if align else 1
+        return resolve_checkpoint(ctx.config.checkpoint, scans)
+
+    def inputs(self, ctx: StageContext) -> str:
+        from dsnet_core.model.bundle import checkpoint_digest
+
+        return "checkpoint:" + checkpoint_digest(self.checkpoint(ctx))
+
+    def plan(self, ctx: StageContext) -> Plan:
         align = ctx.store.read_manifest(ctx.sequence, "align")
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),
-            meta={"checkpoint": str(resolve_checkpoint(ctx.config.checkpoint).resolve())},
+            meta={"checkpoint": str(self.checkpoint(ctx).resolve())},
         )
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:

@@ -73,12 +73,17 @@ def config_hash(run: dict[str, Any]) -> str:
 
 def model_card_id(store: RunStore, sequences: list[str], run: dict[str, Any]) -> str:
     """The model card id ``<checkpoint folder>@<weights sha256[:12]>`` of the run's infer stage
-    (its ``checkpoint``, else the bundled model), from the card's JSON; "" when there is no model."""
-    if not any(store.read_manifest(seq, "infer") is not None for seq in sequences):
+    (the checkpoint its manifest resolved: the configured one or a bundled model), from the card's
+    JSON; "" when there is no model."""
+    manifests = [m for seq in sequences if (m := store.read_manifest(seq, "infer")) is not None]
+    if not manifests:
         return ""
-    folder = (run.get("stages", {}).get("infer") or {}).get("checkpoint")
-    # the bundled model's folder (dsnet_core.model.bundle.bundled_dir, which imports torch)
-    path = Path(folder) if folder else Path(__file__).resolve().parents[1] / "dsnet_core/data/models/tiny"
+    folder = manifests[0].plan.get("checkpoint") or (run.get("stages", {}).get("infer") or {}).get(
+        "checkpoint"
+    )
+    if not folder:
+        return ""
+    path = Path(folder)
     try:
         card = json.loads((path / "card.json").read_text())
     except (OSError, ValueError):

@@ -5,9 +5,9 @@ A checkpoint folder (see :mod:`dsnet_core.model.checkpoint`) may also hold::
 
     CKPT/shift.safetensors    the dynamic-shifting MLPs (``DynamicShift.state_dict()``), optional
 
-The bundled model lives in the package at ``dsnet_core/data/models/tiny/`` (shipped by
-``pyproject``'s ``data/models/*``). Until a trained checkpoint is placed there,
-:func:`bundled_checkpoint` returns None and callers must say so instead of pretending.
+The bundled models live in the package at ``dsnet_core/data/models/tiny/`` (single scans) and
+``dsnet_core/data/models/tiny-4d/`` (2-scan fine-tune), shipped by ``pyproject``'s package data.
+When a copy of the package lacks them, :func:`bundled_checkpoint` returns None and callers say so.
 """
 
 from __future__ import annotations
@@ -24,30 +24,41 @@ from dsnet_core.model.checkpoint import CheckpointError, read_card, save_tensors
 
 SHIFT_WEIGHTS = "shift.safetensors"
 BUNDLED_NAME = "tiny"
+BUNDLED_4D_NAME = "tiny-4d"
 
 
-def bundled_dir() -> Path:
-    """Where the bundled demo checkpoint lives inside the package (it may not exist yet)."""
-    return Path(__file__).resolve().parents[1] / "data" / "models" / BUNDLED_NAME
+def bundled_dir(scans: int = 1) -> Path:
+    """Where the bundled demo checkpoint for ``scans``-scan volumes lives inside the package:
+    ``tiny`` (single scans) or ``tiny-4d`` (its instance head and shifting fine-tuned on 2-scan
+    volumes, used for every k > 1)."""
+    name = BUNDLED_NAME if scans <= 1 else BUNDLED_4D_NAME
+    return Path(__file__).resolve().parents[1] / "data" / "models" / name
 
 
-def bundled_checkpoint() -> Path | None:
-    """The bundled demo checkpoint folder, or None when no trained model is bundled yet."""
-    path = bundled_dir()
-    return path if (path / "card.json").is_file() and (path / "model.safetensors").is_file() else None
+def _is_checkpoint(path: Path) -> bool:
+    return (path / "card.json").is_file() and (path / "model.safetensors").is_file()
 
 
-def resolve_checkpoint(path: str | Path | None) -> Path:
-    """``path``, or the bundled model when None.
+def bundled_checkpoint(scans: int = 1) -> Path | None:
+    """The bundled demo checkpoint for ``scans``-scan volumes (the 4D one when k > 1 and it is
+    bundled, else the single-scan one), or None when no trained model is bundled."""
+    for path in (bundled_dir(scans), bundled_dir(1)):
+        if _is_checkpoint(path):
+            return path
+    return None
+
+
+def resolve_checkpoint(path: str | Path | None, scans: int = 1) -> Path:
+    """``path``, or the bundled model for ``scans``-scan volumes when None.
 
     Raises:
         CheckpointError: None given and no bundled model, or ``path`` holds no model card.
     """
     if path is None:
-        found = bundled_checkpoint()
+        found = bundled_checkpoint(scans)
         if found is None:
             raise CheckpointError(
-                bundled_dir(), "no bundled model yet: pass a checkpoint (dsnet label --checkpoint PATH)"
+                bundled_dir(), "no bundled model: pass a checkpoint (dsnet label --checkpoint PATH)"
             )
         return found
     path = Path(path).expanduser()

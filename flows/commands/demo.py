@@ -35,7 +35,7 @@ def demo(
     typer.echo("[2/5] reading it back through the SemanticKITTI reader (every file checked)")
     _print_summary(summarize(SemanticKittiReader(log)))
 
-    ckpt = checkpoint if checkpoint is not None else bundled_checkpoint()
+    ckpt = checkpoint if checkpoint is not None else bundled_checkpoint(scans)
     if ckpt is None:
         typer.echo(
             f"no bundled model yet: {bundled_dir()} holds no trained checkpoint, so this demo stops "

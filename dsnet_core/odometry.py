@@ -59,6 +59,36 @@ def _kiss_icp(config: OdometryConfig):
     return KissICP(cfg)
 
 
+class Odometry:
+    """KISS-ICP over one sequence, one scan at a time in frame order (a local map, constant memory).
+
+    A scan left out (e.g. a quarantined frame) is simply not registered: the next scan's initial
+    guess is then one frame's motion short, which ICP absorbs at driving speeds.
+    """
+
+    def __init__(self, config: OdometryConfig | None = None) -> None:
+        self._odom = _kiss_icp(config or OdometryConfig())
+
+    def register(self, scan: np.ndarray, name: str = "scan") -> np.ndarray:
+        """Register the next scan.
+
+        Args:
+            scan: ``(N, 3+)`` points in the sensor frame (metres); extra columns ignored.
+            name: what error messages call the scan (an index or a file).
+
+        Returns:
+            ``(4, 4) float64`` sensor → world pose, the first registered scan's frame being the world.
+
+        Raises:
+            OdometryError: the scan has fewer than 3 points, or non-finite ones.
+        """
+        xyz = np.ascontiguousarray(np.asarray(scan)[:, :3], dtype=np.float64)
+        if xyz.shape[0] < 3 or not np.isfinite(xyz).all():
+            raise OdometryError(f"{name}: needs at least 3 finite points, got {xyz.shape[0]}")
+        self._odom.register_frame(xyz, np.zeros(xyz.shape[0]))
+        return np.array(self._odom.last_pose, dtype=np.float64)
+
+
 def estimate_poses(scans: Iterable[np.ndarray], config: OdometryConfig | None = None) -> np.ndarray:
     """LiDAR-frame poses of a sequence by KISS-ICP, the first scan's frame being the world.
 
@@ -72,14 +102,8 @@ def estimate_poses(scans: Iterable[np.ndarray], config: OdometryConfig | None = 
     Raises:
         OdometryError: KISS-ICP is not installed, or a scan has fewer than 3 finite points.
     """
-    odom = _kiss_icp(config or OdometryConfig())
-    poses = []
-    for i, scan in enumerate(scans):
-        xyz = np.ascontiguousarray(np.asarray(scan)[:, :3], dtype=np.float64)
-        if xyz.shape[0] < 3 or not np.isfinite(xyz).all():
-            raise OdometryError(f"scan {i}: needs at least 3 finite points, got {xyz.shape[0]}")
-        odom.register_frame(xyz, np.zeros(xyz.shape[0]))
-        poses.append(np.array(odom.last_pose, dtype=np.float64))
+    odom = Odometry(config)
+    poses = [odom.register(scan, f"scan {i}") for i, scan in enumerate(scans)]
     return np.stack(poses) if poses else np.zeros((0, 4, 4))
 
 

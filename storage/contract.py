@@ -94,6 +94,7 @@ FRAMES = TableSpec(
             ("label_path", pa.string()),
             ("n_points", pa.int64()),
             ("pose", pa.list_(pa.float64(), 16)),  # LiDAR-frame 4×4 sensor→world, row-major
+            ("pose_source", pa.string()),  # "log" | "estimated" (ingest --estimate-poses) | None
             ("timestamp", pa.float64()),
             ("checksum", pa.string()),  # blake2b of scan bytes + label bytes
             ("has_labels", pa.bool_()),

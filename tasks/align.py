@@ -85,7 +85,8 @@ class AlignStage(Stage):
             if len(window) > 1 and any(p is None for p in poses):
                 raise PoseFormatError(
                     refs[window[-1]].scan_path.parent.parent,
-                    f"align with scans={len(window)} needs poses; the log has none",
+                    f"align with scans={len(window)} needs poses; the log has none (estimate them with"
+                    " KISS-ICP: dsnet label --estimate-poses, or ingest's estimate_poses setting)",
                 )
             poses = [np.eye(4) if p is None else np.asarray(p, np.float64).reshape(4, 4) for p in poses]
             data = [load(f) for f in window]

@@ -1,8 +1,13 @@
 """Stage ``ingest``: read a log through the reader protocol and write the frame table.
 
-Per frame: id, source path, point count, LiDAR-frame pose, timestamp, checksum (blake2b of the
-scan's and labels' bytes), status. With ``on_error="skip"`` a bad frame is quarantined with the
-reader's message and the rest proceeds; by default the reader's error fails the sequence.
+Per frame: id, source path, point count, LiDAR-frame pose and where it came from, timestamp,
+checksum (blake2b of the scan's and labels' bytes), status. With ``on_error="skip"`` a bad frame is
+quarantined with the reader's message and the rest proceeds; by default the reader's error fails
+the sequence.
+
+A log without poses gets them from KISS-ICP odometry when ``estimate_poses`` is set
+(:mod:`dsnet_core.odometry`; LiDAR-frame poses, the first ok frame being the world, ``Tr`` =
+identity). Odometry is sequential, so such a sequence is one block. A log's own poses always win.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from dsnet_core.errors import DataFormatError
+from dsnet_core.odometry import Odometry, OdometryError
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
 
@@ -36,13 +42,31 @@ def _stat(path) -> list:
 
 
 class IngestConfig(StageConfig):
-    """No settings yet; the version and the source listing decide the fingerprint."""
+    """Ingest settings (with the version and the source listing, they decide the fingerprint).
+
+    Attributes:
+        estimate_poses: estimate LiDAR poses by KISS-ICP odometry for sequences whose log has none
+            (no effect where the log has poses).
+    """
+
+    estimate_poses: bool = False
+
+
+def _log_pose_source(reader, frames) -> str | None:
+    """Where the sequence's poses come from: ``"log"``, or None when the log has none. Poses the
+    reader cannot parse count as the log's: their error is reported per frame, never replaced."""
+    if not frames:
+        return None
+    try:
+        return None if reader.pose(frames[0]) is None else "log"
+    except DataFormatError:
+        return "log"
 
 
 class IngestStage(Stage):
     name = "ingest"
     upstream = ()
-    version = "1"
+    version = "2"  # 2: pose_source column, estimated poses
     Config = IngestConfig
 
     def inputs(self, ctx: StageContext) -> str:
@@ -64,11 +88,20 @@ class IngestStage(Stage):
         return h.hexdigest()
 
     def plan(self, ctx: StageContext) -> Plan:
-        return Plan(n_items=len(ctx.reader.frames(ctx.sequence)))
+        frames = ctx.reader.frames(ctx.sequence)
+        n = len(frames)
+        source = _log_pose_source(ctx.reader, frames)
+        if source is None and ctx.config.estimate_poses and n:  # one block: odometry is sequential
+            return Plan(n_items=n, meta={"pose_source": "estimated"}, blocks=[list(range(n))])
+        return Plan(n_items=n, meta={"pose_source": source})
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         reader = ctx.reader
         frames = reader.frames(ctx.sequence)
+        estimate = ctx.plan.get("pose_source") == "estimated"
+        if estimate and list(items) != list(range(len(frames))):
+            raise ValueError(f"pose estimation needs the whole sequence in one block, got items {items}")
+        odometry = Odometry() if estimate else None
         for i in items:
             frame = frames[i]
             row = {
@@ -78,6 +111,7 @@ class IngestStage(Stage):
                 "label_path": None if frame.label_path is None else str(frame.label_path),
                 "n_points": 0,
                 "pose": None,
+                "pose_source": None,
                 "timestamp": None,
                 "checksum": "",
                 "has_labels": frame.label_path is not None,
@@ -89,7 +123,9 @@ class IngestStage(Stage):
                 labels = reader.labels(frame)
                 pose = reader.pose(frame)
                 row["timestamp"] = reader.timestamp(frame)
-            except DataFormatError as exc:
+                if odometry is not None:
+                    pose = odometry.register(scan, str(frame.scan_path))
+            except (DataFormatError, OdometryError) as exc:
                 if ctx.options.on_error != "skip":
                     raise
                 row.update(status="quarantined", reason=str(exc))
@@ -98,6 +134,7 @@ class IngestStage(Stage):
             row.update(
                 n_points=int(scan.shape[0]),
                 pose=None if pose is None else [float(v) for v in np.asarray(pose).reshape(-1)],
+                pose_source=None if pose is None else ("estimated" if estimate else "log"),
                 checksum=frame_checksum(scan, labels),
             )
             yield ItemResult(

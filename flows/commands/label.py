@@ -15,6 +15,12 @@ def label(
     clusterer: str = typer.Option(
         None, help="dynamic_shift (default), meanshift, dbscan, hdbscan or bfs; or a JSON clusterer config."
     ),
+    estimate_poses: bool = typer.Option(
+        False,
+        "--estimate-poses",
+        help="Estimate LiDAR poses by KISS-ICP odometry for sequences without poses.txt (needs the "
+        "[odometry] extra); a log's own poses always win.",
+    ),
     until: str = typer.Option(None, help="Stop after this stage (e.g. align)."),
     from_stage: str = typer.Option(None, help="Recompute this stage and everything downstream."),
     force: bool = typer.Option(False, help="Recompute every stage."),
@@ -32,7 +38,7 @@ def label(
         raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
     if workers and dask_address:
         raise typer.BadParameter("give --workers or --dask-address, not both")
-    stages = stage_settings(scans, stride, checkpoint, clusterer)
+    stages = stage_settings(scans, stride, checkpoint, clusterer, estimate_poses)
     options = {"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait}
     seqs = sequences.split(",") if sequences else None
     summary = run_label_flow(
@@ -45,13 +51,19 @@ def label(
 
 
 def stage_settings(
-    scans: int, stride: int | None, checkpoint: str | None, clusterer: str | None
+    scans: int,
+    stride: int | None,
+    checkpoint: str | None,
+    clusterer: str | None,
+    estimate_poses: bool = False,
 ) -> dict[str, dict]:
     """The per-stage config of a label run from the command-line options."""
     import json
     from pathlib import Path
 
     stages: dict[str, dict] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
+    if estimate_poses:
+        stages["ingest"] = {"estimate_poses": True}
     if checkpoint:
         stages["infer"] = {"checkpoint": str(Path(checkpoint).expanduser().resolve())}
     if clusterer:

@@ -20,6 +20,9 @@ def serve(
     scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
     checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled model)."),
     until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
+    estimate_poses: bool = typer.Option(
+        False, "--estimate-poses", help="KISS-ICP poses for sequences without poses.txt (log poses win)."
+    ),
 ) -> None:
     """Serve a Prefect deployment that labels, scores and publishes new or stale sequences on a schedule.
 
@@ -39,6 +42,8 @@ def serve(
     from flows.watch import serve as serve_deployment
 
     stages = {"align": {"scans": scans}, **({"infer": {"checkpoint": checkpoint}} if checkpoint else {})}
+    if estimate_poses:
+        stages["ingest"] = {"estimate_poses": True}
     typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
     try:
         serve_deployment(str(watch.resolve()), runs, cron, name, stages, until)

@@ -47,3 +47,22 @@ def test_label_estimate_poses(synth_log, cli_env, tmp_path):
         else:
             drift = trajectory_drift(poses, truth)
             assert drift["max_position_error_m"] < 0.05 * drift["path_m"]  # measured 0.14 m of 5.9 m
+
+
+def test_serve_pending_follows_the_flag(synth_log, tmp_path):
+    from flows.watch import pending_sequences
+    from tasks.runner import run_stage_plain
+
+    log = tmp_path / "log"
+    shutil.copytree(synth_log, log)
+    for name in ("poses.txt", "calib.txt"):
+        (log / "sequences" / "00" / name).unlink()
+    store = RunStore(tmp_path / "run")
+    stages = {"ingest": {"estimate_poses": True}}
+    run = {"data": str(log), "stages": stages}
+    store.write_run_config("r1", run)
+    for seq in ("00", "01"):
+        run_stage_plain(store, seq, "ingest", run, "r1")
+    assert pending_sequences(str(log), store.uri, stages, until="ingest") == []
+    # the flag is part of ingest's fingerprint: a tick without it relabels every sequence
+    assert pending_sequences(str(log), store.uri, None, until="ingest") == ["00", "01"]

@@ -14,7 +14,7 @@ from dsnet_core.synth import generate_log
 from storage.run import RunStore
 from tasks.runner import run_stage_plain
 
-N_FRAMES = 10
+N_FRAMES = 20
 CAR_RAW = 10  # parked cars
 
 
@@ -22,9 +22,10 @@ CAR_RAW = 10  # parked cars
 def logs(tmp_path_factory):
     """(log with poses, the same log without poses.txt and calib.txt, true LiDAR poses)."""
     base = tmp_path_factory.mktemp("poses")
-    # VLP-32: on this flat synthetic ground HDL-64's dense rings pull KISS-ICP towards zero motion
-    # (5-10 % end-point drift over 10 frames for seeds 1-7); VLP-32 gives 0.9-2.1 %.
-    generate_log(base / "full", sequences=1, frames=N_FRAMES, seed=2, sensor="vlp32")
+    # HDL-64 (KITTI's sensor). Over 20 frames: 0.3-0.6 % end-point drift for seeds 0-2; the 10-frame
+    # worlds of this generator give KISS-ICP too little structure (5-10 % for seeds 1-7, ground rings
+    # pull it towards zero motion), VLP-32 there: 0.9-2.1 %.
+    generate_log(base / "full", sequences=1, frames=N_FRAMES, seed=2, sensor="hdl64")
     shutil.copytree(base / "full", base / "withheld")
     for name in ("poses.txt", "calib.txt"):
         (base / "withheld" / "sequences" / "00" / name).unlink()
@@ -67,15 +68,15 @@ def test_estimated_poses_drift_and_aligned_parked_cars(logs, tmp_path):
 
     drift = trajectory_drift(est, truth)
     assert drift["path_m"] > 9
-    # measured: 0.94 % end-point, 0.027 deg/m, 0.20 m worst position, 3.4 % frame-to-frame; a failed
+    # measured: 0.26 % end-point, 0.003 deg/m, 0.16 m worst position, 3.6 % frame-to-frame; a failed
     # registration (ICP locked at zero motion) drifts by tens of per cent
-    assert drift["end_translation_pct"] < 3.0
-    assert drift["end_rotation_deg_per_m"] < 0.2
-    assert drift["max_position_error_m"] < 0.04 * drift["path_m"]
+    assert drift["end_translation_pct"] < 2.0
+    assert drift["end_rotation_deg_per_m"] < 0.05
+    assert drift["max_position_error_m"] < 0.02 * drift["path_m"]
 
     # the flag on a log with poses changes nothing: the log's poses win, blocks stay as configured
     t_ingest, t_align = _label(true_store, _run(full, True), "r1")
-    assert len(t_ingest.blocks) == 4 and t_ingest.plan["pose_source"] == "log"
+    assert len(t_ingest.blocks) == -(-N_FRAMES // 3) and t_ingest.plan["pose_source"] == "log"
     tt = true_store.read_table("00", "ingest", "frames").to_pydict()
     assert tt["pose_source"] == ["log"] * N_FRAMES
     np.testing.assert_allclose(_poses(tt), truth, atol=1e-9)
@@ -92,7 +93,7 @@ def test_estimated_poses_drift_and_aligned_parked_cars(logs, tmp_path):
         car = ((a["labels"] & 0xFFFF) == CAR_RAW) & moved & near
         n += int(car.sum())
         worst = max(worst, float(np.linalg.norm(a["points"][car, :3] - b["points"][car, :3], axis=1).max()))
-    # measured 0.14 m (seeds 0, 1, 4: 0.15, 0.12, 0.14); registration locked at zero motion: ~1 m
+    # measured 0.16 m (seeds 0, 1: 0.14, 0.13); a registration locked at zero motion: ~1 m
     assert n > 1000 and worst < 0.2
 
 
@@ -124,6 +125,6 @@ def test_quarantined_frame_is_skipped_by_odometry(logs, tmp_path):
     ok = [i for i in range(N_FRAMES) if i != 4]
     assert [t["pose_source"][i] for i in ok] == ["estimated"] * len(ok)
     drift = trajectory_drift(_poses({"pose": [t["pose"][i] for i in ok]}), truth[ok])
-    # the odometry's prediction is one frame short after the gap; measured 0.85 % end-point drift
-    assert drift["end_translation_pct"] < 3.0 and drift["max_position_error_m"] < 0.04 * drift["path_m"]
+    # the odometry's prediction is one frame short after the gap; measured 0.31 % end-point drift, 0.16 m
+    assert drift["end_translation_pct"] < 2.0 and drift["max_position_error_m"] < 0.02 * drift["path_m"]
     assert all(4 not in w for w in align.plan["windows"]) and align.n_items == len(ok) - 1

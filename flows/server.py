@@ -104,4 +104,14 @@ def prefect_api(startup_timeout: int = 90) -> Iterator[str]:
             yield server.api_url
     finally:
         os.environ.pop("PREFECT_API_URL", None)
+        _drain_events()
         server.stop()
+
+
+def _drain_events(timeout: float = 10.0) -> None:
+    """Flush and stop Prefect's events worker while its server still runs: the worker is a process
+    singleton bound to the URL it started with, so a later temporary server in the same process
+    would otherwise see a worker that keeps retrying the dead one."""
+    from prefect.events.worker import EventsWorker
+
+    EventsWorker.drain_all(timeout=timeout, at_exit=False)

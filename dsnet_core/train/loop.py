@@ -192,7 +192,7 @@ class Trainer:
     def run(self, on_step: StepCallback | None = None) -> ModelCard:
         """Train every pending epoch of every stage; returns the final model card."""
         for stage in self.stages:
-            done, total = self.card.epochs.get(stage, 0), self.cfg.epochs.get(stage, 0)
+            done, total = self._valid_epochs(stage), self.cfg.epochs.get(stage, 0)
             if done >= total:
                 continue
             if stage == "shift":
@@ -214,6 +214,25 @@ class Trainer:
                 self._save(stage, epoch + 1, opt)
                 log.info("%s epoch %d: loss %.4f, val mIoU %.4f", stage, epoch + 1, loss, record["val_miou"])
         return self.card
+
+    def _valid_epochs(self, stage: str) -> int:
+        """Completed epochs of ``stage`` that still hold: those recorded after the last epoch of an
+        earlier stage. Training the backbone again (more semantic epochs after the instance head or
+        shifting were trained) invalidates what was trained on the old features; the card's count
+        is corrected and the stage starts over from its current weights."""
+        earlier = {s for s in STAGES[: STAGES.index(stage)]}
+        last = max((i for i, m in enumerate(self.card.metrics) if m["stage"] in earlier), default=-1)
+        valid = sum(1 for m in self.card.metrics[last + 1 :] if m["stage"] == stage)
+        recorded = self.card.epochs.get(stage, 0)
+        if valid < recorded:
+            log.info(
+                "%d %s epoch(s) were trained on an older backbone: retraining the stage from epoch %d",
+                recorded,
+                stage,
+                valid,
+            )
+            self.card.epochs[stage] = valid
+        return min(valid, recorded)
 
     def _run_shift(self, done: int, total: int) -> None:
         """Train the shifting MLPs (everything else frozen); weights go to ``CKPT/shift.safetensors``."""

@@ -128,3 +128,16 @@ def test_fine_tune_starts_a_new_card_from_another_checkpoint(log, tmp_path):
     before, after = parent.state_dict(), child.state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before if not k.startswith("ins_head."))
     assert any(not torch.equal(before[k], after[k]) for k in before if k.startswith("ins_head."))
+
+
+def test_more_backbone_epochs_invalidate_the_heads_trained_before(log, tmp_path):
+    trainer(log, tmp_path, stage="all", epochs={"semantic": 1, "offset": 1, "shift": 1}).run()
+    first_shift = load_shift_weights(tmp_path)
+    # a longer semantic schedule later: the instance head and shifting were trained on old features
+    card = trainer(log, tmp_path, resume=True, epochs={"semantic": 2, "offset": 1, "shift": 1}).run()
+    assert [m["stage"] for m in card.metrics] == ["semantic", "offset", "shift"] * 2
+    assert card.epochs == {"semantic": 2, "offset": 1, "shift": 1}
+    assert not torch.equal(first_shift["mlps.0.0.weight"], load_shift_weights(tmp_path)["mlps.0.0.weight"])
+    # nothing left to do: a further resume trains nothing
+    again = trainer(log, tmp_path, resume=True, epochs={"semantic": 2, "offset": 1, "shift": 1}).run()
+    assert len(again.metrics) == 6

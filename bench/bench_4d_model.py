@@ -7,8 +7,8 @@ one run store per k under ``--out`` (kept, so ``dsnet dashboard`` can be built f
 
 - ``k=1 + tracking``: the k = 1 run's per-frame instances (``fuse``'s volume-local ids; with
   k = 1 a volume is one frame) linked by :class:`dsnet_core.tracking.Tracker` — centroids in
-  world coordinates through the log's poses (ego-motion compensation), constant-velocity
-  prediction, greedy closest-pair association;
+  world coordinates through the pipeline's poses (ego-motion compensation), greedy
+  closest-pair association, with and (second row) without the constant-velocity prediction;
 - ``k=1 (no ids across frames)``: the k = 1 run's stitched labels. With k = 1 and stride 1
   consecutive volumes share no frame, so the stitcher matches nothing and every frame's
   instances take fresh ids from the sequence counter: a floor for association;
@@ -54,11 +54,13 @@ from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from dsnet_core.metrics.switches import SwitchCounter
 from dsnet_core.oracle4d import stitch_sequence, track_sequence
+from dsnet_core.tracking import Tracker
 from storage.run import RunStore
 
 LM = load_label_map("semantic-kitti")
 FLOW_STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
 TRACKING, FLOOR = "k=1 + tracking", "k=1 (no ids across frames)"
+TRACKERS = {TRACKING: True, "k=1 + tracking, no velocity": False}  # row -> constant_velocity
 
 
 def make_log(root: Path, sequences: int, frames: int, seed: int, first: int, sensor: str) -> None:
@@ -226,12 +228,13 @@ def run_all(args, data: Path, reader, seqs, gt, ks, ckpt: str, ckpt4d: str) -> d
             row.add(seq, *gt[seq], labels)
             volume_splits(store, seq, LM, row.splits)
             if k == 1:
-                track = rows.setdefault(TRACKING, Row())
                 scans = [reader.scan(f) for f in reader.frames(seq)]
-                t0 = time.perf_counter()
-                preds = track_sequence(vols, scans, poses(store, seq), LM, constant_velocity=not args.no_cv)
-                track.ids_s += time.perf_counter() - t0
-                track.add(seq, *gt[seq], preds)
+                for name, cv in TRACKERS.items():
+                    track = rows.setdefault(name, Row())
+                    t0 = time.perf_counter()
+                    preds = track_sequence(vols, scans, poses(store, seq), LM, constant_velocity=cv)
+                    track.ids_s += time.perf_counter() - t0
+                    track.add(seq, *gt[seq], preds)
         print(f"   k = {k}: flow {times['flow']:.1f} s, stages {sum(times[s] for s in FLOW_STAGES):.1f} s")
     return rows
 
@@ -243,17 +246,16 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=None, help="SemanticKITTI-layout log with labels and poses")
     ap.add_argument(
         "--sequences",
-        default="2",
-        help="with --data: comma-separated names (default all); else how many sequences to generate",
+        default=None,
+        help="with --data: comma-separated names (default all); else how many to generate (default 2)",
     )
-    ap.add_argument("--frames", type=int, default=20, help="frames per generated sequence")
-    ap.add_argument("--sensor", default="hdl64", help="sensor of the generated log (hdl64 or vlp32)")
+    ap.add_argument("--frames", type=int, default=20, help="frames per generated sequence (not with --data)")
+    ap.add_argument("--sensor", default="hdl64", help="sensor of the generated log and of the warm-up")
     ap.add_argument("--seed", type=int, default=303, help="seed of the generated log (held out)")
     ap.add_argument("--first-sequence", type=int, default=60, help="first generated sequence (held out)")
     ap.add_argument("--scans", default="1,2,3,4", help="values of k; the tracking rows need 1")
     ap.add_argument("--out", type=Path, required=True, help="folder for the run stores and the tables")
     ap.add_argument("--force", action="store_true", help="recompute every stage of existing run stores")
-    ap.add_argument("--no-cv", action="store_true", help="tracking without constant-velocity prediction")
     ap.add_argument("--no-warmup", action="store_true", help="skip the 1-frame warm-up label run")
     args = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -264,11 +266,11 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     if args.data is None:
         data = args.out / "log"
-        make_log(data, int(args.sequences), args.frames, args.seed, args.first_sequence, args.sensor)
+        make_log(data, int(args.sequences or 2), args.frames, args.seed, args.first_sequence, args.sensor)
         seqs = None
     else:
         data = args.data
-        seqs = args.sequences.split(",") if not args.sequences.isdigit() else None
+        seqs = args.sequences.split(",") if args.sequences else None
     reader = SemanticKittiReader(data)
     seqs = seqs or reader.sequences()
     gt: dict[str, tuple[list[str], list[np.ndarray]]] = {}
@@ -298,7 +300,7 @@ def main() -> None:
                 "sequences": seqs,
                 "frames": n_frames,
                 "scans": ks,
-                "tracker": {"constant_velocity": not args.no_cv},
+                "tracker": {"rows": TRACKERS, "defaults": Tracker(LM).state_dict()["config"]},
             },
         )
 
@@ -314,7 +316,7 @@ def _finite(x):
 
 def write_results(args, rows: dict[str, Row], n_frames: int, meta: dict) -> None:
     """Print the table and write ``bench_4d_model.json`` / ``.md`` under ``--out``."""
-    order = [r for r in (TRACKING, FLOOR, "k=2", "k=3", "k=4") if r in rows]
+    order = [r for r in (*TRACKERS, FLOOR, "k=2", "k=3", "k=4") if r in rows]
     order += [r for r in rows if r not in order]
     results = {r: rows[r].summary(n_frames) for r in order}
     (args.out / "bench_4d_model.json").write_text(

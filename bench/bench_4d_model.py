@@ -28,8 +28,9 @@ the ones recorded when they ran (``--force`` recomputes).
 Default data: held-out synthetic sequences (seed 303 from sequence 60; the demo model was
 trained on seed 101 sequences 0–15 and validated on seed 202 sequences 50–51), hdl64 as trained.
 
-Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_4d_model.py --checkpoint CKPT
-[--checkpoint-4d CKPT4D] [--sequences 2] [--frames 20] [--scans 1,2,3,4] --out DIR``.
+Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_4d_model.py [--checkpoint CKPT]
+[--checkpoint-4d CKPT4D] [--sequences 2] [--frames 20] [--scans 1,2,3,4] --out DIR``
+(without checkpoints: the bundled ``tiny`` for k = 1 and ``tiny-4d`` for k > 1).
 Writes ``DIR/bench_4d_model.json`` and ``DIR/bench_4d_model.md``.
 """
 
@@ -105,6 +106,17 @@ def label_run(data: Path, run: Path, seqs: list[str], k: int, ckpt: str, force: 
     for stage in FLOW_STAGES:
         times[stage] = sum(store.read_manifest(s, stage).timings.get("wall_s", 0.0) for s in seqs)
     return times
+
+
+def checkpoints(ckpt: str | None, ckpt4d: str | None) -> tuple[str, str]:
+    """The k = 1 and the k > 1 checkpoint folders (absolute): as given, else the bundled models."""
+    from dsnet_core.model.bundle import bundled_checkpoint
+
+    one = ckpt or bundled_checkpoint(1)
+    if one is None:
+        raise SystemExit("no bundled model in this tree: pass --checkpoint")
+    four = ckpt4d or (ckpt if ckpt else bundled_checkpoint(2))
+    return str(Path(one).resolve()), str(Path(four).resolve())
 
 
 def warm_up(root: Path, ckpt: str, sensor: str) -> None:
@@ -241,8 +253,12 @@ def run_all(args, data: Path, reader, seqs, gt, ks, ckpt: str, ckpt4d: str) -> d
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--checkpoint", required=True, help="the k = 1 (3D) model")
-    ap.add_argument("--checkpoint-4d", default=None, help="model for k > 1 (default: --checkpoint)")
+    ap.add_argument("--checkpoint", default=None, help="the k = 1 (3D) model (default: the bundled tiny)")
+    ap.add_argument(
+        "--checkpoint-4d",
+        default=None,
+        help="model for k > 1 (default: --checkpoint when given, else the bundled tiny-4d)",
+    )
     ap.add_argument("--data", type=Path, default=None, help="SemanticKITTI-layout log with labels and poses")
     ap.add_argument(
         "--sequences",
@@ -258,6 +274,7 @@ def main() -> None:
     ap.add_argument("--force", action="store_true", help="recompute every stage of existing run stores")
     ap.add_argument("--no-warmup", action="store_true", help="skip the 1-frame warm-up label run")
     args = ap.parse_args()
+    ckpt, ckpt4d = checkpoints(args.checkpoint, args.checkpoint_4d)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
@@ -279,8 +296,6 @@ def main() -> None:
         gt[seq] = ([f.frame_id for f in frames], [reader.labels(f) for f in frames])
     n_frames = sum(len(ids) for ids, _ in gt.values())
     ks = [int(s) for s in args.scans.split(",")]
-    ckpt = str(Path(args.checkpoint).resolve())
-    ckpt4d = str(Path(args.checkpoint_4d).resolve()) if args.checkpoint_4d else ckpt
 
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
     from flows.server import prefect_api

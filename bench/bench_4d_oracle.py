@@ -7,9 +7,9 @@ synthetic sequences with moving objects; the same BFS clusterer and fusion for e
 - ``k=1 (no ids across frames)``: the same without tracking (every frame fresh ids), a floor;
 - ``k=2/3/4``: k-scan volumes (stride k-1, one shared frame) → cluster → fuse → stitch.
 
-Prints LSTQ, S_assoc, S_cls (``corrected`` mode) and PQ over all sequences, and the time per
-frame of the instance stage, of stitching and of tracking (the speed ratio stitching/frame is
-the number to watch, not absolute times).
+Prints LSTQ, S_assoc, S_cls (``corrected`` mode), PQ and identity switches along ground-truth
+tubes over all sequences, and the time per frame of the instance stage, of stitching and of
+tracking (the speed ratio stitching/frame is the number to watch, not absolute times).
 
 Run: ``.venv/bin/python bench/bench_4d_oracle.py [--frames 40] [--seeds 0 1 2] [--sensor vlp32]``.
 """
@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
+from dsnet_core.metrics.switches import SwitchCounter
 from dsnet_core.oracle4d import oracle_volumes, stitch_sequence, track_sequence
 from dsnet_core.synth import generate_log
 
@@ -45,6 +46,7 @@ def main() -> None:
 
     rows = ["k=1 + tracking", "k=1 (no ids across frames)", "k=2", "k=3", "k=4"]
     evals = {r: PanopticEvaluator(LM, mode="corrected") for r in rows}
+    switches = {r: SwitchCounter(LM) for r in rows}
     times = {r: [0.0, 0.0] for r in rows}  # instance stage, stitch/track
     n_frames = 0
     with tempfile.TemporaryDirectory() as tmp:
@@ -73,6 +75,7 @@ def main() -> None:
                 times[row][1] += t2 - t1
                 for f, (gt, pred) in enumerate(zip(gts, preds, strict=True)):
                     evals[row].add(gt, pred, frame=f"{f:06d}", sequence=seq)
+                    switches[row].add(gt, pred, sequence=seq)
             print(f"sequence {seq}: {len(frames)} frames, {np.mean([len(s) for s in scans]):.0f} points/scan")
 
     print(
@@ -81,7 +84,7 @@ def main() -> None:
     )
     print(
         f"{'method':28s} {'LSTQ':>7s} {'S_assoc':>8s} {'S_cls':>7s} {'PQ':>7s} {'PQ_th':>7s} {'tubes':>6s}"
-        f" {'inst ms/f':>10s} {'ids ms/f':>9s}"
+        f" {'id sw':>6s} {'inst ms/f':>10s} {'ids ms/f':>9s}"
     )
     for row in rows:
         res = evals[row].result()
@@ -89,9 +92,10 @@ def main() -> None:
         print(
             f"{row:28s} {res.lstq.lstq:7.4f} {res.lstq.s_assoc:8.4f} {res.lstq.s_cls:7.4f} "
             f"{res.panoptic.pq:7.4f} {res.panoptic.pq_things:7.4f} {res.lstq.n_tubes:6d} "
-            f"{t[0]:10.1f} {t[1]:9.2f}"
+            f"{switches[row].switches:6d} {t[0]:10.1f} {t[1]:9.2f}"
         )
     print("inst ms/f: align + oracle centres + clustering + fusion; ids ms/f: stitching or tracking")
+    print("id sw: identity switches along ground-truth tubes (dsnet_core.metrics.switches)")
 
 
 if __name__ == "__main__":

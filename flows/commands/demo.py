@@ -38,7 +38,8 @@ def demo(
     ckpt = checkpoint if checkpoint is not None else bundled_checkpoint(scans)
     if ckpt is None:
         typer.echo(
-            f"no bundled model yet: {bundled_dir()} holds no trained checkpoint, so this demo stops "
+            f"no bundled model: {bundled_dir(scans)} holds no trained checkpoint (a copy of the package "
+            "without its model files?), so this demo stops "
             "after generating and checking the log. Label it with your own model:\n"
             f"  dsnet demo --out {out} --checkpoint PATH\n"
             f"  dsnet label {log} --run {run} --checkpoint PATH"

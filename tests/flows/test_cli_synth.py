@@ -63,16 +63,30 @@ def test_synth_refuses_existing_and_unknown_sensor(tmp_path):
     assert res.returncode == 2 and "unknown LiDAR model 'hdl32'" in res.stderr
 
 
-def test_demo_is_honest(tmp_path):
-    res = dsnet("demo", "--out", str(tmp_path / "demo"), "--frames", "2")
+def test_demo_labels_with_the_bundled_models(tmp_path, cli_env):
+    out = tmp_path / "demo"
+
+    def demo(*args: str) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "flows.cli", "demo", "--out", str(out), "--sensor", "vlp32", *args]
+        return subprocess.run(cmd, cwd=ROOT, env=cli_env, capture_output=True, text=True, timeout=600)
+
+    res = demo("--frames", "2")
     assert res.returncode == 0, res.stderr
     assert "class histogram" in res.stdout and "motorcyclist" in res.stdout
-    if bundled_checkpoint() is None:
-        assert "no bundled model yet" in res.stdout and "PQ" not in res.stdout
-    assert len(SemanticKittiReader(tmp_path / "demo" / "log").frames("00")) == 2
-    # a second run replaces its own log
-    assert dsnet("demo", "--out", str(tmp_path / "demo"), "--frames", "1").returncode == 0
-    assert len(SemanticKittiReader(tmp_path / "demo" / "log").frames("00")) == 1
+    assert f"model: bundled model {bundled_checkpoint(2)}" in res.stdout and "tiny-4d" in res.stdout
+    assert "records no training" not in res.stdout
+    scores = json.loads((out / "scores.json").read_text())
+    assert scores["frames"] == 2
+    assert f"PQ {100 * scores['pq']:.1f}  LSTQ {100 * scores['lstq']:.1f}" in res.stdout
+    assert f"dashboard {out.resolve() / 'run' / 'dashboard.html'}" in res.stdout
+    assert (out / "run" / "dashboard.html").stat().st_size > 10_000
+    assert len(list((out / "predictions/sequences/00/predictions").glob("*.label"))) == 2
+    # a second run replaces its own log; k = 1 takes the single-scan model
+    res = demo("--frames", "1", "--scans", "1")
+    assert res.returncode == 0, res.stderr
+    assert f"model: bundled model {bundled_checkpoint(1)}" in res.stdout
+    assert len(SemanticKittiReader(out / "log").frames("00")) == 1
+    assert json.loads((out / "scores.json").read_text())["frames"] == 1
 
 
 @pytest.mark.slow

@@ -17,7 +17,7 @@ def serve(
     name: str = typer.Option(
         None, help="Dataset name (artifact keys, deployment name); default: the log's folder."
     ),
-    scans: int = typer.Option(1, help="k, scans per 4D volume (1 = 3D)."),
+    scans: int = typer.Option(2, help="k, scans per 4D volume (1 = 3D; default 2 as in dsnet label)."),
     checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled model)."),
     until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
     estimate_poses: bool = typer.Option(

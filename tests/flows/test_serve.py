@@ -70,7 +70,7 @@ def test_served_deployment_labels_new_sequences_when_triggered(prefect_api_url, 
     runs = tmp_path / "runs"
     env = {**cli_env, "PREFECT_RUNNER_POLL_FREQUENCY": "1"}
     args = ("serve", "--watch", str(synth_log), "--runs", str(runs), "--cron", "0 3 * * *", "--name", "synth")
-    args += ("--until", "align")  # infer needs a trained checkpoint
+    # no --checkpoint: the bundled model for k = 2 labels, the score stage scores, the dashboard refreshes
     proc = subprocess.Popen(cli(*args), cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         dep = _wait_deployment("auto-label/auto-label-synth", proc)
@@ -79,10 +79,12 @@ def test_served_deployment_labels_new_sequences_when_triggered(prefect_api_url, 
         assert first.state.is_completed(), first.state
         store = RunStore(runs)
         for seq in ("00", "01"):
-            for stage in ("ingest", "align"):
+            for stage in ("ingest", "align", "infer", "shift", "fuse", "stitch", "score"):
                 assert store.read_manifest(seq, stage).status == "done"
+            assert store.read_manifest(seq, "infer").plan["checkpoint"].endswith("tiny-4d")
         tick = Artifact.get("auto-label-synth")
         assert "Labelled 2 sequence(s): 00, 01" in tick.data
+        assert f"Dashboard: `{runs}/dashboard.html`" in tick.data and (runs / "dashboard.html").is_file()
         progress = Artifact.get("label-progress")
         assert progress.type == "progress" and float(progress.data) == 100.0
         second = run_deployment("auto-label/auto-label-synth", timeout=300)

@@ -89,7 +89,7 @@ def main() -> None:
             share = 100 * per_frame["stitch"] / total
             print(f"  {name:>4}: {cells}  | total {total:.2f}  (stitch {share:.1f}%)")
         thing = store.read_manifest("00", "infer").counts.get("thing_points", 0)
-        print(f"  thing points per volume (random heads decide): {thing / max(m.n_items, 1):.0f}")
+        print(f"  thing points per volume (as the model labels them): {thing / max(m.n_items, 1):.0f}")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"  peak RSS {peak:.0f} MiB (this k); stores under {tmp}")
 

@@ -19,11 +19,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _store4d import stitched
+
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from flows.commands.label import run_label_flow, stage_settings
-from flows.export import stitched_frames
 from flows.server import prefect_api
 from storage.run import RunStore
 
@@ -53,11 +54,11 @@ def label(data: Path, run: Path, ckpt: str, clusterer: dict) -> float:
 def score(data: Path, run: Path) -> tuple[float, float]:
     """(PQ^Th, PQ) of the run's stitched labels against ``data``'s ground truth (official mode)."""
     reader = SemanticKittiReader(data)
+    store = RunStore(str(run))
     ev = PanopticEvaluator(load_label_map("semantic-kitti"), keep_rows=False)
-    refs = {(s, f.frame_id): f for s in reader.sequences() for f in reader.frames(s)}
-    for seq, frame_id, pred in stitched_frames(RunStore(str(run))):
-        if pred is not None:
-            ev.add(reader.labels(refs[seq, frame_id]), pred, frame=frame_id, sequence=seq)
+    for seq in reader.sequences():
+        for frame, pred in zip(reader.frames(seq), stitched(store, seq), strict=True):
+            ev.add(reader.labels(frame), pred, frame=frame.frame_id, sequence=seq)
     res = ev.result().panoptic
     return res.pq_things, res.pq
 

@@ -38,6 +38,11 @@ class AlignConfig(StageConfig):
         return self
 
 
+def volume_scans(ctx: StageContext) -> int:
+    """k, the scans per volume of the sequence's ``align`` stage (from its manifest's config)."""
+    return int(ctx.store.read_manifest(ctx.sequence, "align").config.get("scans", 1))
+
+
 class AlignStage(Stage):
     name = "align"
     upstream = ("ingest",)

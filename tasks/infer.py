@@ -21,6 +21,7 @@ from pydantic import Field
 
 from dsnet_core.errors import CheckpointMismatchError
 from storage.contract import INS_DIM, N_CLASSES
+from tasks.align import volume_scans
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
 log = logging.getLogger(__name__)
@@ -65,9 +66,7 @@ class InferStage(Stage):
         """The checkpoint folder: the configured one, else the bundled model for align's k."""
         from dsnet_core.model.bundle import resolve_checkpoint
 
-        align = ctx.store.read_manifest(ctx.sequence, "align")
-        scans = max((len(w) for w in align.plan.get("windows", [])), default=1) if align else 1
-        return resolve_checkpoint(ctx.config.checkpoint, scans)
+        return resolve_checkpoint(ctx.config.checkpoint, volume_scans(ctx))
 
     def inputs(self, ctx: StageContext) -> str:
         from dsnet_core.model.bundle import checkpoint_digest

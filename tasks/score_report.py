@@ -71,16 +71,12 @@ def config_hash(run: dict[str, Any]) -> str:
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
-def model_card_id(store: RunStore, sequences: list[str], run: dict[str, Any]) -> str:
+def model_card_id(store: RunStore, sequences: list[str]) -> str:
     """The model card id ``<checkpoint folder>@<weights sha256[:12]>`` of the run's infer stage
     (the checkpoint its manifest resolved: the configured one or a bundled model), from the card's
     JSON; "" when there is no model."""
-    manifests = [m for seq in sequences if (m := store.read_manifest(seq, "infer")) is not None]
-    if not manifests:
-        return ""
-    folder = manifests[0].plan.get("checkpoint") or (run.get("stages", {}).get("infer") or {}).get(
-        "checkpoint"
-    )
+    infer = next((m for seq in sequences if (m := store.read_manifest(seq, "infer")) is not None), None)
+    folder = infer.plan.get("checkpoint") if infer is not None else None
     if not folder:
         return ""
     path = Path(folder)
@@ -135,7 +131,7 @@ def write_report(store: RunStore, bev_frames: int = 6, review_rows: int = 30) ->
         "run_id": str(run.get("run_id", "")),
         "root": store.uri,
         "mode": str(res.mode),
-        "model_card": model_card_id(store, sequences, run),
+        "model_card": model_card_id(store, sequences),
         "config_hash": config_hash(run),
         "min_points": total.min_points,
         "sequences": len(evals),

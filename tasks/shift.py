@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import Field
 
 from dsnet_core.clustering_config import ClustererConfig, DynamicShiftConfig
+from tasks.align import volume_scans
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
 log = logging.getLogger(__name__)
@@ -78,8 +79,7 @@ class ShiftStage(Stage):
 
     def plan(self, ctx: StageContext) -> Plan:
         infer = ctx.store.read_manifest(ctx.sequence, "infer")
-        scans = int(ctx.store.read_manifest(ctx.sequence, "align").config.get("scans", 1))
-        cfg = effective_clusterer(ctx.config, scans)
+        cfg = effective_clusterer(ctx.config, volume_scans(ctx))
         dynamic = isinstance(cfg, DynamicShiftConfig)
         return Plan(
             n_items=infer.n_items,

@@ -220,7 +220,7 @@ class Trainer:
         earlier stage. Training the backbone again (more semantic epochs after the instance head or
         shifting were trained) invalidates what was trained on the old features; the card's count
         is corrected and the stage starts over from its current weights."""
-        earlier = {s for s in STAGES[: STAGES.index(stage)]}
+        earlier = set(STAGES[: STAGES.index(stage)])
         last = max((i for i, m in enumerate(self.card.metrics) if m["stage"] in earlier), default=-1)
         valid = sum(1 for m in self.card.metrics[last + 1 :] if m["stage"] == stage)
         recorded = self.card.epochs.get(stage, 0)

@@ -39,11 +39,10 @@ def serve(
             err=True,
         )
         raise typer.Exit(code=2)
+    from flows.commands.label import stage_settings
     from flows.watch import serve as serve_deployment
 
-    stages = {"align": {"scans": scans}, **({"infer": {"checkpoint": checkpoint}} if checkpoint else {})}
-    if estimate_poses:
-        stages["ingest"] = {"estimate_poses": True}
+    stages = stage_settings(scans, None, checkpoint, None, estimate_poses)
     typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
     try:
         serve_deployment(str(watch.resolve()), runs, cron, name, stages, until)

@@ -17,15 +17,16 @@ from dsnet_core.synth import kitti_tr
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def dsnet(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+def dsnet(*args: str, cwd: Path = ROOT, env: dict | None = None, timeout: int = 300):
+    """Run ``dsnet ARGS`` from this checkout (``env``: e.g. the session Prefect server's)."""
+    env = env if env is not None else {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
         [sys.executable, "-m", "flows.cli", *args],
         cwd=cwd,
         env=env,
         capture_output=True,
         text=True,
-        timeout=300,
+        timeout=timeout,
     )
 
 
@@ -67,8 +68,7 @@ def test_demo_labels_with_the_bundled_models(tmp_path, cli_env):
     out = tmp_path / "demo"
 
     def demo(*args: str) -> subprocess.CompletedProcess:
-        cmd = [sys.executable, "-m", "flows.cli", "demo", "--out", str(out), "--sensor", "vlp32", *args]
-        return subprocess.run(cmd, cwd=ROOT, env=cli_env, capture_output=True, text=True, timeout=600)
+        return dsnet("demo", "--out", str(out), "--sensor", "vlp32", *args, env=cli_env, timeout=600)
 
     res = demo("--frames", "2")
     assert res.returncode == 0, res.stderr
@@ -96,14 +96,7 @@ def test_demo_labels_exports_and_scores_with_a_checkpoint(tmp_path, cli_env):
     ckpt = make_checkpoint(tmp_path / "ckpt")
     out = tmp_path / "demo"
     args = ("demo", "--out", str(out), "--frames", "3", "--sensor", "vlp32", "--checkpoint", str(ckpt))
-    res = subprocess.run(
-        [sys.executable, "-m", "flows.cli", *args],
-        cwd=ROOT,
-        env=cli_env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    res = dsnet(*args, env=cli_env, timeout=600)
     assert res.returncode == 0, res.stderr
     assert "records no training" in res.stdout  # a random-weight checkpoint is not passed off as a model
     assert "PQ† and LSTQ" in res.stdout and f"scores {out / 'scores.json'}" in res.stdout

@@ -204,11 +204,11 @@ def test_model_card_id_names_the_checkpoint_and_its_weights(tmp_path):
     ckpt = tmp_path / "tiny-v2"
     ckpt.mkdir()
     (ckpt / "card.json").write_text(json.dumps({"weights_sha256": "ab" * 32}))
-    run = {"stages": {"infer": {"checkpoint": str(ckpt)}}}
-    assert model_card_id(store, ["00"], run) == ""  # no infer stage ran
+    assert model_card_id(store, ["00"]) == ""  # no infer stage ran
+    # the checkpoint the infer stage resolved (configured or bundled) is in its manifest's plan
     m = Manifest(
         stage="infer", sequence="00", fingerprint="f", status="done", code_version="1", config={},
-        upstream={}, inputs="", run_id="r1",
+        upstream={}, inputs="", run_id="r1", plan={"checkpoint": str(ckpt)},
     )  # fmt: skip
     store.write_manifest(m)
-    assert model_card_id(store, ["00"], run) == "tiny-v2@" + "ab" * 6
+    assert model_card_id(store, ["00"]) == "tiny-v2@" + "ab" * 6

@@ -1,7 +1,7 @@
 """Shared set-up of the shifting benchmarks: synthetic logs with oracle centres and features.
 
 Ground-truth semantics stand in for the prediction; regressed centres are ground-truth box
-centres plus ``dsnet_core.oracle`` noise; features are ``oracle_features``. Scored with the
+centres plus ``dsnet_core.oracle.inputs`` noise; features are ``oracle_features``. Scored with the
 project's SemanticKITTI evaluator (official mode; PQ^Th over the 8 thing classes).
 """
 
@@ -15,11 +15,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dsnet_core.fusion import fuse
+from dsnet_core.instance.fusion import fuse
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
-from dsnet_core.oracle import oracle_inputs
+from dsnet_core.oracle.inputs import oracle_inputs
 from dsnet_core.synth import generate_log
 
 LABEL_MAP = load_label_map("semantic-kitti")

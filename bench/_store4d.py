@@ -15,7 +15,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dsnet_core.labels import LabelMap
-from dsnet_core.stitching import VolumeLabels
+from dsnet_core.temporal.stitching import VolumeLabels
 from storage.run import RunStore
 
 

@@ -1,7 +1,7 @@
 """DS-Net clustering ablation on oracle inputs: learned dynamic shifting vs heuristic clusterers.
 
 Oracle-feature experiment, no network: synthetic HDL-64 logs (``dsnet_core.synth``), ground-truth
-semantics, ground-truth box centres plus the regression-noise model of ``dsnet_core.oracle``, and
+semantics, ground-truth box centres plus the regression-noise model of ``dsnet_core.oracle.inputs``, and
 32-d oracle features (ground-truth class one-hot + regressed-centre geometry) in place of the
 backbone feature. The shifting MLPs are trained on logs of one seed (VLP-32 and HDL-64 scans);
 every heuristic's parameters are tuned by grid search on a subset of the VLP-32 training scans;
@@ -22,15 +22,15 @@ import numpy as np
 import torch
 from _oracle import LABEL_MAP, score, synth_scans
 
-from dsnet_core.clustering import (
+from dsnet_core.instance.clustering import (
     BFSClusterer,
     DBSCANClusterer,
     DynamicShiftClusterer,
     HDBSCANClusterer,
     MeanShiftClusterer,
 )
-from dsnet_core.shift_training import make_sample, train_shift
-from dsnet_core.shifting import DynamicShift
+from dsnet_core.instance.shifting import DynamicShift
+from dsnet_core.train.shifting import make_sample, train_shift
 
 GRIDS = {
     "dynamic shift, fixed weights": [

@@ -6,7 +6,7 @@ the same model and sequences"). Every row goes through the real label flow
 one run store per k under ``--out`` (kept, so ``dsnet dashboard`` can be built from them):
 
 - ``k=1 + tracking``: the k = 1 run's per-frame instances (``fuse``'s volume-local ids; with
-  k = 1 a volume is one frame) linked by :class:`dsnet_core.tracking.Tracker` — centroids in
+  k = 1 a volume is one frame) linked by :class:`dsnet_core.temporal.tracking.Tracker` — centroids in
   world coordinates through the pipeline's poses (ego-motion compensation), greedy
   closest-pair association, with and (second row) without the constant-velocity prediction;
 - ``k=1 (no ids across frames)``: the k = 1 run's stitched labels. With k = 1 and stride 1
@@ -54,8 +54,8 @@ from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from dsnet_core.metrics.switches import SwitchCounter
-from dsnet_core.oracle4d import stitch_sequence, track_sequence
-from dsnet_core.tracking import Tracker
+from dsnet_core.oracle.labelling import stitch_sequence, track_sequence
+from dsnet_core.temporal.tracking import Tracker
 from storage.run import RunStore
 
 LM = load_label_map("semantic-kitti")

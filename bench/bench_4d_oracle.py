@@ -1,6 +1,6 @@
 """4D volumes + stitching vs single-scan clustering + the tracking baseline, on oracle inputs.
 
-Ground-truth semantics and noisy ground-truth centres (``dsnet_core.oracle`` noise model) over
+Ground-truth semantics and noisy ground-truth centres (``dsnet_core.oracle.inputs`` noise model) over
 synthetic sequences with moving objects; the same BFS clusterer and fusion for every row:
 
 - ``k=1 + tracking``: per scan → cluster → fuse → ego-compensated constant-velocity tracker;
@@ -30,7 +30,7 @@ from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from dsnet_core.metrics.switches import SwitchCounter
-from dsnet_core.oracle4d import oracle_volumes, stitch_sequence, track_sequence
+from dsnet_core.oracle.labelling import oracle_volumes, stitch_sequence, track_sequence
 from dsnet_core.synth import generate_log
 
 LM = load_label_map("semantic-kitti")

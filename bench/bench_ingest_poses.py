@@ -21,8 +21,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
-from dsnet_core.odometry import trajectory_drift
 from dsnet_core.synth import generate_log
+from dsnet_core.temporal.odometry import trajectory_drift
 from storage.run import RunStore
 from tasks.runner import run_stage_plain
 

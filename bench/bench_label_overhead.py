@@ -30,8 +30,8 @@ quiet_prefect_env()
 def compute_only(log: Path, scans: int) -> None:
     import numpy as np
 
-    from dsnet_core.align import build_volume, plan_windows
     from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.temporal.align import build_volume, plan_windows
     from tasks.ingest import frame_checksum
 
     reader = SemanticKittiReader(log)

@@ -1,7 +1,7 @@
 """KISS-ICP poses for synthetic logs whose poses are withheld: drift against the true trajectory.
 
 For each seed and sensor: generate a sequence, estimate LiDAR-frame poses from the scans alone
-(``dsnet_core.odometry.estimate_poses``), and compare with the generator's poses: end-point
+(``dsnet_core.temporal.odometry.estimate_poses``), and compare with the generator's poses: end-point
 translation drift (% of path), heading drift (deg/m), mean frame-to-frame errors and the worst
 position error; plus the odometry time per scan next to the time to read a scan from disk.
 
@@ -21,8 +21,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
-from dsnet_core.odometry import estimate_poses, trajectory_drift
 from dsnet_core.synth import generate_log
+from dsnet_core.temporal.odometry import estimate_poses, trajectory_drift
 
 
 def main() -> None:

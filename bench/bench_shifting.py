@@ -5,7 +5,8 @@
    and the neighbour kernel at 20 000 seeds (4D setting, two scans' thing points as one volume).
 3. Dynamic shifting + final clustering (full ``DynamicShiftClusterer.cluster``) vs scikit-learn
    ``MeanShift(bin_seeding=True)`` on all regressed centres, with PQ^Th of both (oracle inputs on
-   held-out synthetic HDL-64 scans, learned weights from tests/dsnet_core/data/shift_oracle.safetensors).
+   held-out synthetic HDL-64 scans, learned weights from
+   tests/dsnet_core/oracle/data/shift_oracle.safetensors).
 
 Times are CPU seconds of this (single-threaded) process.
 
@@ -23,11 +24,11 @@ import torch
 from _oracle import score, synth_scans
 from safetensors.torch import load_file
 
-from dsnet_core.clustering import DynamicShiftClusterer
-from dsnet_core.fps import farthest_point_sampling
-from dsnet_core.shifting import BANDWIDTHS_4D, DynamicShift
+from dsnet_core.instance.clustering import DynamicShiftClusterer
+from dsnet_core.instance.fps import farthest_point_sampling
+from dsnet_core.instance.shifting import BANDWIDTHS_4D, DynamicShift
 
-WEIGHTS = Path(__file__).resolve().parents[1] / "tests/dsnet_core/data/shift_oracle.safetensors"
+WEIGHTS = Path(__file__).resolve().parents[1] / "tests/dsnet_core/oracle/data/shift_oracle.safetensors"
 
 
 def best_of(fn, repeats: int) -> tuple[float, object]:

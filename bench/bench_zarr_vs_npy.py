@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dsnet_core.align import build_volume
+from dsnet_core.temporal.align import build_volume
 from storage.run import RunStore
 from tests.logs import pose
 

@@ -26,8 +26,8 @@ def describe(
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
 ) -> None:
     """Check every file of a log and print frames, points and the class histogram."""
-    from dsnet_core.describe import summarize
     from dsnet_core.errors import DsnetError
+    from dsnet_core.io.describe import summarize
     from dsnet_core.io.semantickitti import SemanticKittiReader
 
     try:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from storage.arrays import StageArrays
-from storage.contract import CONTRACTS, StageContract
+from storage.contract import CONTRACTS
 from storage.errors import StoreError
 from storage.fs import RootFS
 from storage.manifest import BlockFragment, Manifest
@@ -106,9 +106,6 @@ class RunStore:
         return self.root.read_json(
             posixpath.join(self.stage_rel(sequence, stage), "items", f"{index:06d}.json")
         )
-
-    def contract(self, stage: str) -> StageContract:
-        return CONTRACTS[stage]
 
     def create_arrays(self, sequence: str, stage: str, n_items: int, max_points: int, omit=()) -> StageArrays:
         rel = posixpath.join(self.stage_rel(sequence, stage), "arrays.zarr")

@@ -12,8 +12,8 @@ from collections.abc import Iterator
 import numpy as np
 from pydantic import Field, model_validator
 
-from dsnet_core.align import build_volume, plan_windows
 from dsnet_core.errors import PoseFormatError
+from dsnet_core.temporal.align import build_volume, plan_windows
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 from tasks.ingest import frame_checksum
 

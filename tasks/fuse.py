@@ -31,7 +31,7 @@ class FuseStage(Stage):
         return Plan(n_items=infer.n_items, max_points=int(infer.plan["max_points"]))
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
-        from dsnet_core.fusion import fuse
+        from dsnet_core.instance.fusion import fuse
         from dsnet_core.labels import load_label_map
         from tasks.infer import dequantise_probs
 

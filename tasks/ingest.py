@@ -6,7 +6,7 @@ quarantined with the reader's message and the rest proceeds; by default the read
 the sequence.
 
 A log without poses gets them from KISS-ICP odometry when ``estimate_poses`` is set
-(:mod:`dsnet_core.odometry`; LiDAR-frame poses, the first ok frame being the world, ``Tr`` =
+(:mod:`dsnet_core.temporal.odometry`; LiDAR-frame poses, the first ok frame being the world, ``Tr`` =
 identity). Odometry is sequential, so such a sequence is one block. A log's own poses always win.
 """
 
@@ -19,7 +19,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from dsnet_core.errors import DataFormatError
-from dsnet_core.odometry import Odometry, OdometryError
+from dsnet_core.temporal.odometry import Odometry, OdometryError
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
 

@@ -1,6 +1,6 @@
 """Stage ``shift``: class-agnostic instance clustering of each volume's predicted thing points.
 
-The clusterer comes from :mod:`dsnet_core.clustering` through its pydantic config (``kind`` =
+The clusterer comes from :mod:`dsnet_core.instance.clustering` through its pydantic config (``kind`` =
 ``dynamic_shift`` by default; ``meanshift``, ``dbscan``, ``hdbscan``, ``bfs`` for the ablation
 and as fallbacks). Its input is the thing points (predicted thing classes) with their regressed
 centres ``xyz + offset`` and instance features. Output per point: ``instance`` (int32 raw ids
@@ -22,7 +22,7 @@ from collections.abc import Iterator
 import numpy as np
 from pydantic import Field
 
-from dsnet_core.clustering_config import ClustererConfig, DynamicShiftConfig
+from dsnet_core.instance.clustering_config import ClustererConfig, DynamicShiftConfig
 from tasks.align import volume_scans
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
@@ -55,7 +55,7 @@ def cluster_volume(clusterer, xyz: np.ndarray, centres: np.ndarray, features: np
     """Ids of the thing points, and for dynamic shifting the seeds and their converged positions.
 
     Args:
-        clusterer: from :func:`dsnet_core.clustering.get_clusterer`.
+        clusterer: from :func:`dsnet_core.instance.clustering.get_clusterer`.
         xyz, centres: float32 ``(M, 3)`` thing points and regressed centres, metres.
         features: ``(M, D)`` instance features.
 
@@ -63,7 +63,7 @@ def cluster_volume(clusterer, xyz: np.ndarray, centres: np.ndarray, features: np
         ``(ids int64 (M,), seeds int64 (S,) or None, converged float32 (S, 3) or None)``; the ids
         equal ``clusterer.cluster(xyz, centres, features)``.
     """
-    from dsnet_core.clustering import DynamicShiftClusterer
+    from dsnet_core.instance.clustering import DynamicShiftClusterer
 
     if not isinstance(clusterer, DynamicShiftClusterer) or xyz.shape[0] < 2:
         return clusterer.cluster(xyz, centres, features), None, None
@@ -95,10 +95,10 @@ class ShiftStage(Stage):
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         from pydantic import TypeAdapter
 
-        from dsnet_core.clustering import get_clusterer
+        from dsnet_core.instance.clustering import get_clusterer
+        from dsnet_core.instance.shifting import DynamicShift
         from dsnet_core.labels import load_label_map
         from dsnet_core.model.bundle import load_shift_weights
-        from dsnet_core.shifting import DynamicShift
 
         cfg = TypeAdapter(ClustererConfig).validate_python(ctx.plan["clusterer"])
         fixed = 0

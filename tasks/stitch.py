@@ -2,7 +2,7 @@
 
 Reads ``fuse`` (per volume: train ids, raw instance ids, instance confidences) and ``align``
 (each point's source frame and source index) and streams the volumes of a sequence through
-:class:`dsnet_core.stitching.Stitcher`: on the frames two consecutive volumes share, the new
+:class:`dsnet_core.temporal.stitching.Stitcher`: on the frames two consecutive volumes share, the new
 volume's raw ids inherit the tracked ids they overlap with point IoU > 0.5 (one-to-one); every
 other raw id takes a fresh id from one counter per sequence (never reused). For k = 1 volumes
 share no frame, so this is exactly "hand out sequence-wide ids from one counter".
@@ -74,7 +74,7 @@ class StitchStage(Stage):
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         from dsnet_core.labels import load_label_map
-        from dsnet_core.stitching import Stitcher, VolumeLabels
+        from dsnet_core.temporal.stitching import Stitcher, VolumeLabels
 
         todo = set(items)  # the runner passes only the frames not yet done
         if not todo:
@@ -133,7 +133,7 @@ class StitchStage(Stage):
 
     def _resume(self, ctx: StageContext, fingerprint: str, windows, done: np.ndarray, label_map):
         """(stitcher, first volume to compute) from a saved state that is still valid, else (None, 0)."""
-        from dsnet_core.stitching import Stitcher
+        from dsnet_core.temporal.stitching import Stitcher
 
         saved = ctx.store.root.read_json(_state_rel(ctx))
         if saved is None or saved.get("fingerprint") != fingerprint:

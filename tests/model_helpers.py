@@ -7,13 +7,13 @@ from pathlib import Path
 
 import torch
 
+from dsnet_core.instance.shifting import DynamicShift
 from dsnet_core.labels import load_label_map
 from dsnet_core.model.bundle import save_shift_weights
 from dsnet_core.model.checkpoint import ModelCard, class_map_of, save_checkpoint
 from dsnet_core.model.cylinder import CylinderGrid
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
-from dsnet_core.shifting import DynamicShift
 
 # coarse grid and narrow layers: ~0.1 s a 27k-point scan on one CPU thread; 20 classes and
 # 32-d features as the infer contract stores
@@ -45,7 +45,7 @@ def make_checkpoint(path: Path, seed: int = 0, shift_weights: bool = True) -> Pa
 # Prelude of a subprocess script: SIGKILLs its own process when stitching reaches the third volume.
 KILL_STITCH_AT_THIRD_VOLUME = """
 import os, signal, sys
-import dsnet_core.stitching as st
+import dsnet_core.temporal.stitching as st
 _orig, _calls = st.Stitcher.add_volume, [0]
 def add_volume(self, volume):
     _calls[0] += 1

@@ -86,7 +86,7 @@ def checkpoint_digest(path: str | Path) -> str:
 
 
 def save_shift_weights(path: str | Path, module: torch.nn.Module) -> Path:
-    """Write a :class:`~dsnet_core.shifting.DynamicShift`'s weights into checkpoint folder ``path``."""
+    """Write a :class:`~dsnet_core.instance.shifting.DynamicShift`'s weights into checkpoint ``path``."""
     out = Path(path) / SHIFT_WEIGHTS
     bandwidths = ",".join(str(b) for b in getattr(module, "bandwidths", ()))
     save_tensors(module.state_dict(), out, metadata={"bandwidths": bandwidths})

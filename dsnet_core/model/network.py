@@ -36,7 +36,7 @@ class NetOutput:
 
 
 class DSNet(nn.Module):
-    """DS-Net's network without the shifting module (which lives in ``dsnet_core.shifting``)."""
+    """DS-Net's network without the shifting module (which lives in ``dsnet_core.instance.shifting``)."""
 
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()

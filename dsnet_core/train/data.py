@@ -8,10 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dsnet_core.align import to_reference
 from dsnet_core.errors import PoseFormatError
 from dsnet_core.io.reader import FrameRef, LogReader
 from dsnet_core.labels import LabelMap
+from dsnet_core.temporal.align import to_reference
 
 
 @dataclass(frozen=True)

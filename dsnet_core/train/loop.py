@@ -28,7 +28,6 @@ from dsnet_core.model.checkpoint import (
     class_map_of,
     code_version,
     load_checkpoint,
-    read_card,
     save_checkpoint,
 )
 from dsnet_core.model.losses import (
@@ -40,10 +39,15 @@ from dsnet_core.model.losses import (
 )
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
-from dsnet_core.shift_training import train_shift
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
 from dsnet_core.train.metrics import ConfusionMeter
-from dsnet_core.train.shift_stage import make_shift_module, seeds_per_volume, shift_error, shift_samples
+from dsnet_core.train.shifting import (
+    clusterer_for,
+    make_shift_module,
+    shift_error,
+    shift_samples,
+    train_shift,
+)
 from dsnet_core.train.state import load_train_state, save_train_state
 
 log = logging.getLogger(__name__)
@@ -242,7 +246,7 @@ class Trainer:
         saved = load_shift_weights(self.out) if done else None
         if saved is not None:
             module.load_state_dict(saved)
-        n_seeds = seeds_per_volume(self.cfg.scans)
+        n_seeds = clusterer_for(self.cfg.scans).n_seeds
         log.info("shift stage: collecting seeds of %d training volumes", len(self.train_vols))
         train = shift_samples(self.model, self.reader, self.train_vols, self.label_map, n_seeds, self.device)
         val = shift_samples(self.model, self.val_reader, self.val_vols, self.label_map, n_seeds, self.device)
@@ -387,8 +391,3 @@ def write_metrics_table(out: Path, metrics: list[dict]) -> None:
         w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
         w.writeheader()
         w.writerows(metrics)
-
-
-def read_metrics(out: str | Path) -> list[dict]:
-    """The per-epoch records stored in a checkpoint's model card."""
-    return read_card(out).metrics

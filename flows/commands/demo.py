@@ -21,7 +21,7 @@ def demo(
     """Generate a small synthetic log, label it with the bundled model, export and score it."""
     import shutil
 
-    from dsnet_core.describe import summarize
+    from dsnet_core.io.describe import summarize
     from dsnet_core.io.semantickitti import SemanticKittiReader
     from dsnet_core.model.bundle import bundled_checkpoint, bundled_dir
     from dsnet_core.model.checkpoint import read_card

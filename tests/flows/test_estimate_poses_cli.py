@@ -7,7 +7,7 @@ import subprocess
 import numpy as np
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
-from dsnet_core.odometry import trajectory_drift
+from dsnet_core.temporal.odometry import trajectory_drift
 from storage.run import RunStore
 from tests.flows.conftest import REPO, cli
 

@@ -9,8 +9,8 @@ import pytest
 
 from dsnet_core.errors import PoseFormatError
 from dsnet_core.io.semantickitti import SemanticKittiReader
-from dsnet_core.odometry import trajectory_drift
 from dsnet_core.synth import generate_log
+from dsnet_core.temporal.odometry import trajectory_drift
 from storage.run import RunStore
 from tasks.runner import run_stage_plain
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from pydantic import TypeAdapter
 
-from dsnet_core.clustering import ClustererConfig, get_clusterer
+from dsnet_core.instance.clustering import ClustererConfig, get_clusterer
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.model.bundle import load_shift_weights

@@ -4,6 +4,7 @@ import pytest
 import torch
 from safetensors import safe_open
 
+from dsnet_core.instance.shifting import BANDWIDTHS_3D, BANDWIDTHS_4D
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.model.bundle import (
@@ -14,7 +15,6 @@ from dsnet_core.model.bundle import (
 )
 from dsnet_core.model.checkpoint import load_checkpoint
 from dsnet_core.model.inference import Predictor
-from dsnet_core.shifting import BANDWIDTHS_3D, BANDWIDTHS_4D
 from dsnet_core.synth import generate_log
 from dsnet_core.train.metrics import ConfusionMeter
 

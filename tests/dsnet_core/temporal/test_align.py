@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dsnet_core.align import build_volume, plan_windows, split_volume, to_reference
+from dsnet_core.temporal.align import build_volume, plan_windows, split_volume, to_reference
 from tests.logs import NOISE, car_world, pose
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dsnet_core.labels import load_label_map
-from dsnet_core.stitching import (
+from dsnet_core.temporal.stitching import (
     FinishedFrame,
     Stitcher,
     StitchError,

@@ -109,7 +109,7 @@ def dbscan(x: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
     """
     from scipy.spatial import cKDTree
 
-    from dsnet_core.radius import radius_sums
+    from dsnet_core.instance.radius import radius_sums
 
     n = x.shape[0]
     labels = np.full(n, -1, dtype=np.int64)

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from dsnet_core.labels import LabelMap, load_label_map
-from dsnet_core.stitching import MAX_ID, StitchError
+from dsnet_core.temporal.stitching import MAX_ID, StitchError
 
 # SemanticKITTI train ids that may be confused frame to frame: vehicles, two-wheelers with and
 # without rider, persons.
@@ -205,11 +205,3 @@ class Tracker:
                 Track(int(t["id"]), int(t["group"]), pos, vel, float(t["time"]), int(t["misses"]))
             )
         return tr
-
-
-def track_frames(
-    frames: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]], **kwargs
-) -> list[np.ndarray]:
-    """Track a whole sequence: ``frames`` of ``(xyz, semantic, instance, pose)``; labels per frame."""
-    tracker = Tracker(**kwargs)
-    return [tracker.add_frame(xyz, s, i, pose) for xyz, s, i, pose in frames]

@@ -1,6 +1,6 @@
 """The clusterers' configs: pydantic models, a discriminated union on ``kind``.
 
-Kept apart from the algorithms (``dsnet_core.clustering``) so that stages and command lines can
+Kept apart from the algorithms (``dsnet_core.instance.clustering``) so that stages and command lines can
 parse and fingerprint a clusterer choice without importing torch. The bandwidths are the paper's.
 """
 

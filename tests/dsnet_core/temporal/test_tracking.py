@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dsnet_core.labels import load_label_map
-from dsnet_core.tracking import Tracker, instance_centroids
+from dsnet_core.temporal.tracking import Tracker, instance_centroids
 
 LM = load_label_map("semantic-kitti")
 CAR, TRUCK, PERSON, ROAD = 1, 4, 6, 9

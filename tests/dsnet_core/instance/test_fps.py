@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from dsnet_core.fps import farthest_point_sampling
+from dsnet_core.instance.fps import farthest_point_sampling
 
 
 def naive_fps(points: np.ndarray, n: int) -> np.ndarray:

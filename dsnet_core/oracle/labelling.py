@@ -13,13 +13,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dsnet_core.align import build_volume, plan_windows
-from dsnet_core.clustering import BFSConfig, Clusterer, get_clusterer
-from dsnet_core.fusion import fuse
+from dsnet_core.instance.clustering import BFSConfig, Clusterer, get_clusterer
+from dsnet_core.instance.fusion import fuse
 from dsnet_core.labels import LabelMap
-from dsnet_core.oracle import box_centres, noisy_centres
-from dsnet_core.stitching import Stitcher, VolumeLabels
-from dsnet_core.tracking import Tracker
+from dsnet_core.oracle.inputs import box_centres, noisy_centres
+from dsnet_core.temporal.align import build_volume, plan_windows
+from dsnet_core.temporal.stitching import Stitcher, VolumeLabels
+from dsnet_core.temporal.tracking import Tracker
 
 
 def _objects(semantic: np.ndarray, instance: np.ndarray, thing: np.ndarray) -> np.ndarray:

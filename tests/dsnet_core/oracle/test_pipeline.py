@@ -1,7 +1,8 @@
 """Shifting + clustering + fusion on oracle inputs (no network): ground-truth semantics and box
 centres plus regression noise and oracle features, on the synthetic log of the ``synth_log``
 fixture, scored by the project's evaluator. The shifting weights were trained on a log of another
-seed by ``bench/ablation_shifting.py --save-weights tests/dsnet_core/data/shift_oracle.safetensors``."""
+seed by ``bench/ablation_shifting.py --save-weights
+tests/dsnet_core/oracle/data/shift_oracle.safetensors``."""
 
 from pathlib import Path
 
@@ -10,14 +11,14 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from dsnet_core.clustering import DynamicShiftConfig, get_clusterer
-from dsnet_core.fusion import fuse
+from dsnet_core.instance.clustering import DynamicShiftConfig, get_clusterer
+from dsnet_core.instance.fusion import fuse
+from dsnet_core.instance.shifting import DynamicShift
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
-from dsnet_core.oracle import oracle_inputs
-from dsnet_core.shift_training import make_sample, train_shift
-from dsnet_core.shifting import DynamicShift
+from dsnet_core.oracle.inputs import oracle_inputs
+from dsnet_core.train.shifting import make_sample, train_shift
 
 torch.set_num_threads(1)  # the machines behave like one core; extra threads only spin
 

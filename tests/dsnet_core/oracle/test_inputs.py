@@ -1,6 +1,6 @@
 import numpy as np
 
-from dsnet_core.oracle import box_centres, noisy_centres, oracle_inputs
+from dsnet_core.oracle.inputs import box_centres, noisy_centres, oracle_inputs
 
 
 def test_box_centres_are_tight_box_centres_not_centroids():

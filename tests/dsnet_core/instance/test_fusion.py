@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from dsnet_core.fusion import fuse
+from dsnet_core.instance.fusion import fuse
 
 THINGS = range(1, 9)
 

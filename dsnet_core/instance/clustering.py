@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from dsnet_core.clustering_config import (  # noqa: F401  (re-exported: configs live beside the algorithms' registry)
+from dsnet_core.instance.clustering_config import (  # noqa: F401  (re-exported: configs live beside the algorithms' registry)
     BFSConfig,
     ClustererConfig,
     DBSCANConfig,
@@ -23,10 +23,10 @@ from dsnet_core.clustering_config import (  # noqa: F401  (re-exported: configs 
     HDBSCANConfig,
     MeanShiftConfig,
 )
-from dsnet_core.components import dbscan, radius_components
-from dsnet_core.fps import farthest_point_sampling
-from dsnet_core.meanshift import cluster_seeds, mean_shift
-from dsnet_core.shifting import DynamicShift
+from dsnet_core.instance.components import dbscan, radius_components
+from dsnet_core.instance.fps import farthest_point_sampling
+from dsnet_core.instance.meanshift import cluster_seeds, mean_shift
+from dsnet_core.instance.shifting import DynamicShift
 
 
 class Clusterer(Protocol):
@@ -149,7 +149,7 @@ class MeanShiftClusterer:
 
 
 class DBSCANClusterer:
-    """DBSCAN on the regressed centres (:func:`dsnet_core.components.dbscan`, without neighbour
+    """DBSCAN on the regressed centres (:func:`dsnet_core.instance.components.dbscan`, without neighbour
     lists: scikit-learn's runs out of memory on dense regressed centres). Noise points take their
     nearest clustered point's id (in ``xyz``) unless ``assign_noise`` is off (then they stay 0)."""
 

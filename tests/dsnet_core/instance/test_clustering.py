@@ -5,7 +5,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from dsnet_core.clustering import (
+from dsnet_core.instance.clustering import (
     CLUSTERERS,
     BFSClusterer,
     ClustererConfig,
@@ -16,8 +16,8 @@ from dsnet_core.clustering import (
     MeanShiftClusterer,
     get_clusterer,
 )
-from dsnet_core.components import dbscan, radius_components
-from dsnet_core.shifting import BANDWIDTHS_4D, DynamicShift
+from dsnet_core.instance.components import dbscan, radius_components
+from dsnet_core.instance.shifting import BANDWIDTHS_4D, DynamicShift
 
 
 def _objects(seed: int, k: int = 12, n: int = 1500):

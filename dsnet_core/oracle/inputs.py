@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dsnet_core.radius import radius_sums
+from dsnet_core.instance.radius import radius_sums
 
 NOISE_DEFAULTS = {"radial": (0.08, 0.008), "tangential": (0.04, 0.003), "bias": (0.05, 0.002)}
 

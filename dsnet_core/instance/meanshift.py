@@ -3,7 +3,7 @@
 DS-Net clusters the converged seeds with ``MeanShift(bandwidth=0.65, bin_seeding=True)``. This
 module runs the same algorithm (same seeds, per-seed stopping rule, intensity ordering and
 duplicate suppression, nearest-centre labels) but moves all seeds at once with the grid
-neighbour sums of :mod:`dsnet_core.radius` instead of one Python loop and one tree query per
+neighbour sums of :mod:`dsnet_core.instance.radius` instead of one Python loop and one tree query per
 seed and iteration. Means are accumulated in float64 (scikit-learn averages in the input dtype),
 so centres can differ in the last bits; the clusters are the same (tested against scikit-learn).
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from dsnet_core.radius import RadiusIndex
+from dsnet_core.instance.radius import RadiusIndex
 
 
 def bin_seeds(x: np.ndarray, bandwidth: float) -> np.ndarray:

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from dsnet_core.shifting import (
+from dsnet_core.instance.shifting import (
     BANDWIDTHS_3D,
     DynamicShift,
     flat_kernel_targets_dense,

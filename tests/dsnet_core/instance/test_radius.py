@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from dsnet_core.radius import RadiusIndex, radius_sums
+from dsnet_core.instance.radius import RadiusIndex, radius_sums
 
 
 def _brute(q, p, radii, values):

@@ -7,7 +7,7 @@ import pytest
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
-from dsnet_core.oracle4d import oracle_4d, oracle_tracking
+from dsnet_core.oracle.labelling import oracle_4d, oracle_tracking
 from dsnet_core.synth import generate_log
 
 LM = load_label_map("semantic-kitti")

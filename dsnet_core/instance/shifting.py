@@ -23,8 +23,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from dsnet_core.clustering_config import BANDWIDTHS_3D, BANDWIDTHS_4D  # noqa: F401  (re-exported)
-from dsnet_core.radius import radius_sums
+from dsnet_core.instance.clustering_config import BANDWIDTHS_3D, BANDWIDTHS_4D  # noqa: F401  (re-exported)
+from dsnet_core.instance.radius import radius_sums
 
 Kernel = Literal["dense", "neighbors"]
 

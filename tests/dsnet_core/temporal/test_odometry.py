@@ -8,8 +8,8 @@ from scipy.spatial import cKDTree
 
 from dsnet_core.io import kitti
 from dsnet_core.io.semantickitti import SemanticKittiReader
-from dsnet_core.odometry import OdometryError, estimate_poses, trajectory_drift
 from dsnet_core.synth import generate_log
+from dsnet_core.temporal.odometry import OdometryError, estimate_poses, trajectory_drift
 
 CAR_RAW = 10  # parked cars (moving ones are 252)
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from sklearn.cluster import MeanShift
 
-from dsnet_core.meanshift import bin_seeds, cluster_seeds, mean_shift
+from dsnet_core.instance.meanshift import bin_seeds, cluster_seeds, mean_shift
 
 
 def _blobs(seed: int, n: int = 2000, k: int = 25, spread: float = 0.3) -> np.ndarray:

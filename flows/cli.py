@@ -22,16 +22,17 @@ def _fail(exc: Exception) -> None:
 
 @app.command()
 def describe(
-    data: Path = typer.Argument(..., help="Log root in the SemanticKITTI layout (holds sequences/)."),
+    data: Path = typer.Argument(..., help="Log root (any format `dsnet label` reads)."),
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
+    format: str = typer.Option("auto", "--format", help="Log format (default: detected)."),
 ) -> None:
     """Check every file of a log and print frames, points and the class histogram."""
     from dsnet_core.errors import DsnetError
     from dsnet_core.io.describe import summarize
-    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.io.formats import open_log
 
     try:
-        reader = SemanticKittiReader(data)
+        reader = open_log(data, format)
         seqs = sequences.split(",") if sequences else None
         summary = summarize(reader, seqs)
     except DsnetError as exc:

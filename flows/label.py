@@ -94,6 +94,7 @@ def label(
     force: bool = False,
     storage_options: dict[str, Any] | None = None,
     until: str | None = None,
+    format: str = "auto",
 ) -> list[dict[str, Any]]:
     """The body of both flows. Returns one summary row per (sequence, stage).
 
@@ -109,15 +110,17 @@ def label(
     if until is not None:
         order = order[: order.index(until) + 1]
     forced = set(order) if force else ({from_stage, *downstream_of(from_stage)} if from_stage else set())
-    if sequences is None:
-        from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.io.formats import open_log
 
-        sequences = SemanticKittiReader(data).sequences()
+    reader = open_log(data, format)
+    if sequences is None:
+        sequences = reader.sequences()
     run_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:6]}"
     run = {
         "code_version": code_version(),
         "stage_versions": {name: STAGES[name].version for name in order},
         "data": str(data),
+        "format": reader.format,
         "sequences": list(sequences),
         "stages": {name: dict((stages or {}).get(name, {})) for name in order},
         "options": opts.model_dump(),

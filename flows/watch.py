@@ -36,12 +36,17 @@ def pending_sequences(
 ) -> list[str]:
     """Sequences of the log at ``data`` that the store at ``root`` lacks or holds stale (in the
     stages up to ``until``)."""
-    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.io.formats import open_log
 
     store = RunStore(root)
-    run = {"data": str(data), "stages": {n: dict((stages or {}).get(n, {})) for n in stage_order()}}
+    reader = open_log(data)
+    run = {
+        "data": str(data),
+        "format": reader.format,
+        "stages": {n: dict((stages or {}).get(n, {})) for n in stage_order()},
+    }
     out = []
-    for seq in SemanticKittiReader(data).sequences():
+    for seq in reader.sequences():
         m = store.read_manifest(seq, "ingest")
         if m is None or m.status != "done":
             out.append(seq)

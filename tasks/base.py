@@ -84,10 +84,10 @@ class StageContext:
 
     @cached_property
     def reader(self):
-        """The log reader of the run's data source."""
-        from dsnet_core.io.semantickitti import SemanticKittiReader
+        """The log reader of the run's data source, opened as the run recorded it."""
+        from dsnet_core.io.formats import open_log
 
-        return SemanticKittiReader(self.run["data"])
+        return open_log(self.run["data"], self.run.get("format", "auto"), self.run.get("reader_options"))
 
     @cached_property
     def frames(self):

@@ -206,13 +206,13 @@ def bev_rows(
     store: RunStore, run: dict, frames: dict[str, dict[str, list]], ev: PanopticEvaluator, n: int
 ) -> list[dict[str, Any]]:
     """Bird's-eye-view PNGs (prediction and ground truth) of the ``n`` worst frames."""
-    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.io.formats import open_log
     from dsnet_core.viz.bev import label_colours, render_bev
     from dsnet_core.viz.png import encode_png
 
     if n <= 0:
         return []
-    reader = SemanticKittiReader(run["data"])
+    reader = open_log(run["data"], run.get("format", "auto"), run.get("reader_options"))
     lm = ev.label_map
     rows = []
     for rank, (seq, index, fid, pq, npts) in enumerate(worst_frames(frames, n)):

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dsnet_core.io.semantickitti import SemanticKittiReader
+from dsnet_core.io.reader import LogReader
 
 
 @dataclass
@@ -28,12 +28,12 @@ class LogSummary:
     has_poses: dict[str, bool] = field(default_factory=dict)
 
 
-def summarize(reader: SemanticKittiReader, sequences: list[str] | None = None) -> LogSummary:
+def summarize(reader: LogReader, sequences: list[str] | None = None) -> LogSummary:
     """Read every frame of ``sequences`` (all by default) and count points per class."""
     lm = reader.label_map
     summary = LogSummary()
-    hist = np.zeros(lm.num_classes, dtype=np.int64)
-    instances: dict[int, set[int]] = {c: set() for c in lm.things}
+    hist = np.zeros(lm.num_classes if lm is not None else 0, dtype=np.int64)
+    instances: dict[int, set[int]] = {c: set() for c in lm.things} if lm is not None else {}
     for seq in sequences or reader.sequences():
         frames = reader.frames(seq)
         summary.frames[seq] = len(frames)
@@ -42,8 +42,8 @@ def summarize(reader: SemanticKittiReader, sequences: list[str] | None = None) -
         for ref in frames:
             scan = reader.scan(ref)
             total += scan.shape[0]
-            label = reader.labels(ref, n_points=scan.shape[0])
-            if label is None:
+            label = reader.labels(ref)
+            if label is None or lm is None:
                 continue
             train = lm.to_train(label & 0xFFFF)
             hist += np.bincount(train, minlength=lm.num_classes)
@@ -52,7 +52,7 @@ def summarize(reader: SemanticKittiReader, sequences: list[str] | None = None) -
                 ids = np.unique(inst[(train == c) & (inst > 0)])
                 instances[c].update(f"{seq}/{i}" for i in ids.tolist())  # type: ignore[misc]
         summary.points[seq] = total
-    if hist.sum():
+    if lm is not None and hist.sum():
         summary.class_points = {lm.class_names[c]: int(hist[c]) for c in range(lm.num_classes)}
         summary.class_instances = {lm.class_names[c]: len(instances[c]) for c in lm.things}
     return summary

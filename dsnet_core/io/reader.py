@@ -9,6 +9,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from dsnet_core.labels import LabelMap
+
 
 @dataclass(frozen=True)
 class FrameRef:
@@ -31,9 +33,18 @@ class FrameRef:
 
 @runtime_checkable
 class LogReader(Protocol):
-    """Read-only access to a driving log."""
+    """Read-only access to a driving log.
+
+    Attributes:
+        root: the log's root.
+        format: the registered format name (:mod:`dsnet_core.io.formats`).
+        label_map: the ground truth's label map (raw ids in ``labels``), or None for a log whose
+            format has no labels.
+    """
 
     root: Path
+    format: str
+    label_map: LabelMap | None
 
     def sequences(self) -> list[str]:
         """Sequence names, sorted."""
@@ -57,4 +68,8 @@ class LogReader(Protocol):
 
     def timestamp(self, frame: FrameRef) -> float | None:
         """Seconds, or None."""
+        ...
+
+    def poses(self, sequence: str) -> np.ndarray | None:
+        """float64 ``(F, 4, 4)`` LiDAR-frame poses of every frame of a sequence, or None."""
         ...

@@ -20,7 +20,7 @@ from dsnet_core.labels import LabelMap, load_label_map
 
 
 class SemanticKittiReader:
-    """Reads ``ROOT/sequences/*`` and checks every file it hands out.
+    """Reads ``ROOT/sequences/*`` and checks every file it hands out (format ``semantickitti``).
 
     Args:
         root: dataset root (the folder holding ``sequences/``).
@@ -35,6 +35,7 @@ class SemanticKittiReader:
         check_labels: bool = True,
     ) -> None:
         self.root = Path(root).resolve()
+        self.format = "semantickitti"
         self.label_map = label_map or load_label_map("semantic-kitti")
         self.check_labels = check_labels
         self._lut = self.label_map.lut()

@@ -22,7 +22,7 @@ def demo(
     import shutil
 
     from dsnet_core.io.describe import summarize
-    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.io.formats import open_log
     from dsnet_core.model.bundle import bundled_checkpoint, bundled_dir
     from dsnet_core.model.checkpoint import read_card
     from flows.cli import _fail, _print_summary
@@ -33,7 +33,7 @@ def demo(
     _generate(log, 1, frames, seed, sensor, 0, True, _fail)
     typer.echo(f"      wrote {log.resolve() / 'sequences' / '00'}")
     typer.echo("[2/5] reading it back through the SemanticKITTI reader (every file checked)")
-    _print_summary(summarize(SemanticKittiReader(log)))
+    _print_summary(summarize(open_log(log)))
 
     ckpt = checkpoint if checkpoint is not None else bundled_checkpoint(scans)
     if ckpt is None:

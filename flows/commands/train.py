@@ -56,7 +56,7 @@ def train(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from dsnet_core.errors import DsnetError
-    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.io.formats import open_log
     from dsnet_core.labels import load_label_map
     from dsnet_core.model.presets import get_preset
     from dsnet_core.train.loop import TrainConfig, Trainer
@@ -66,9 +66,9 @@ def train(
     console = Console(stderr=True)
     try:
         label_map = load_label_map("semantic-kitti")
-        reader = SemanticKittiReader(data, label_map)
+        reader = open_log(data, options={"label_map": label_map})
         seqs = sequences.split(",") if sequences else reader.sequences()
-        val_reader = SemanticKittiReader(val_data, label_map) if val_data else reader
+        val_reader = open_log(val_data, options={"label_map": label_map}) if val_data else reader
         if val_sequences:
             vseqs = val_sequences.split(",")
         else:

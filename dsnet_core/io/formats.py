@@ -1,0 +1,123 @@
+"""Log formats: one registry and one factory through which every log is opened.
+
+A format is a name (used alike on input: ``dsnet label --format``, ``describe``, ``serve``; and
+on output: ``dsnet export --format``), a detection rule on the log's root, and a constructor
+that returns a :class:`~dsnet_core.io.reader.LogReader`. ``format="auto"`` asks every registered
+format's rule in registration order and takes the first that accepts the root; nothing
+accepting is a :class:`UnknownLogFormatError` that lists what was found and the formats that
+exist. The run store records the resolved format and the reader options, so every stage reads
+the log the same way.
+
+Add a format by calling :func:`register` (the built-in ones are registered below, at the end).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dsnet_core.errors import DataFormatError
+from dsnet_core.io.reader import LogReader
+
+
+class UnknownLogFormatError(DataFormatError):
+    """No registered format accepts a log root, or an unknown format name was asked for."""
+
+
+@dataclass(frozen=True)
+class LogFormat:
+    """One log format.
+
+    Attributes:
+        name: the format's name on the command line (``semantickitti``).
+        detect: True when a root folder (or file) is in this format; cheap (names, not contents).
+        open: ``open(root, **options) -> LogReader``.
+        description: one line for error messages and ``--help``.
+    """
+
+    name: str
+    detect: Callable[[Path], bool]
+    open: Callable[..., LogReader]
+    description: str
+
+
+FORMATS: dict[str, LogFormat] = {}
+
+
+def register(fmt: LogFormat) -> LogFormat:
+    """Add (or replace) a format in the registry."""
+    FORMATS[fmt.name] = fmt
+    return fmt
+
+
+def format_names() -> list[str]:
+    return list(FORMATS)
+
+
+def detect_format(root: str | Path) -> str:
+    """The name of the first registered format that accepts ``root``.
+
+    Raises:
+        UnknownLogFormatError: nothing accepts it; the message lists what the root holds.
+    """
+    path = Path(root).expanduser()
+    if not path.exists():
+        raise UnknownLogFormatError(path, "no such file or folder")
+    for fmt in FORMATS.values():
+        if fmt.detect(path):
+            return fmt.name
+    raise UnknownLogFormatError(
+        path,
+        f"not a log format this tool reads (found {_listing(path)}); formats: "
+        + "; ".join(f"{f.name} ({f.description})" for f in FORMATS.values()),
+    )
+
+
+def open_log(root: str | Path, format: str = "auto", options: dict[str, Any] | None = None) -> LogReader:
+    """Open a log through its format's reader.
+
+    Args:
+        root: the log's root folder (or file, for single-file formats).
+        format: a registered name, or ``"auto"`` to detect it.
+        options: reader options (recorded in the run config by the caller).
+
+    Raises:
+        UnknownLogFormatError: unknown name, or nothing detected.
+        DataFormatError: the reader's own checks of the root.
+    """
+    name = detect_format(root) if format == "auto" else format
+    if name not in FORMATS:
+        raise UnknownLogFormatError(root, f"unknown format {name!r}; formats: {', '.join(FORMATS)}")
+    return FORMATS[name].open(Path(root).expanduser(), **(options or {}))
+
+
+def _listing(path: Path, limit: int = 8) -> str:
+    if path.is_file():
+        return f"a file with suffix {path.suffix or '(none)'}"
+    names = sorted(p.name + ("/" if p.is_dir() else "") for p in path.iterdir())
+    if not names:
+        return "an empty folder"
+    more = f" and {len(names) - limit} more" if len(names) > limit else ""
+    return ", ".join(names[:limit]) + more
+
+
+def _is_semantickitti(path: Path) -> bool:
+    return path.is_dir() and (path / "sequences").is_dir()
+
+
+def _open_semantickitti(root: Path, **options: Any) -> LogReader:
+    from dsnet_core.io.semantickitti import SemanticKittiReader
+
+    return SemanticKittiReader(root, **options)
+
+
+register(
+    LogFormat(
+        "semantickitti",
+        _is_semantickitti,
+        _open_semantickitti,
+        "sequences/SS/velodyne/*.bin with optional labels/, poses.txt, calib.txt, times.txt",
+    )
+)

@@ -14,6 +14,7 @@ from dsnet_core.errors import DataFormatError
 from dsnet_core.labels import LabelMap
 from dsnet_core.model.checkpoint import ModelCard, load_checkpoint
 from dsnet_core.model.network import DSNet
+from dsnet_core.model.tta import TTAConfig, tta_forward
 
 
 @dataclass(frozen=True)
@@ -41,16 +42,24 @@ class Predictor:
         card: its model card.
         device: ``"cpu"`` or ``"cuda"``.
         threads: torch CPU threads for this process (one by default; None leaves it unchanged).
+        tta: test-time augmentation (:mod:`dsnet_core.model.tta`); None or one rotation without
+            flips is the plain forward pass.
     """
 
     def __init__(
-        self, model: DSNet, card: ModelCard | None = None, device: str = "cpu", threads: int | None = 1
+        self,
+        model: DSNet,
+        card: ModelCard | None = None,
+        device: str = "cpu",
+        threads: int | None = 1,
+        tta: TTAConfig | None = None,
     ):
         if threads is not None and torch.device(device).type == "cpu":
             torch.set_num_threads(threads)
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
         self.card = card
+        self.tta = tta or TTAConfig()
 
     @classmethod
     def from_checkpoint(
@@ -59,10 +68,11 @@ class Predictor:
         device: str = "cpu",
         threads: int | None = 1,
         expect_label_map: LabelMap | None = None,
+        tta: TTAConfig | None = None,
     ) -> Predictor:
         """Load a checkpoint folder (verified, see :func:`load_checkpoint`)."""
         model, card = load_checkpoint(path, device=device, expect_label_map=expect_label_map)
-        return cls(model, card, device=device, threads=threads)
+        return cls(model, card, device=device, threads=threads, tta=tta)
 
     @property
     def num_classes(self) -> int:
@@ -89,7 +99,7 @@ class Predictor:
         results: list[InferenceResult] = []
         nonempty = [t for t in tensors if t.shape[0] > 0]
         with torch.inference_mode():
-            out = self.model(nonempty) if nonempty else None
+            out = tta_forward(self.model, nonempty, self.tta) if nonempty else None
         start = 0
         for t in tensors:
             n = t.shape[0]

@@ -36,6 +36,7 @@ class LabelMap:
         min_points: the benchmark's minimum segment size for unmatched segments.
         split: split name -> list of sequence numbers.
         color_map: raw id -> (b, g, r).
+        ignore: train ids not scored (``learning_ignore``; default: class 0).
     """
 
     name: str
@@ -49,6 +50,7 @@ class LabelMap:
     split: dict[str, list[int]] = field(default_factory=dict)
     color_map: dict[int, tuple[int, int, int]] = field(default_factory=dict)
     source: str = ""
+    ignore: tuple[int, ...] = (0,)
 
     @property
     def num_classes(self) -> int:
@@ -102,6 +104,13 @@ class LabelMap:
             raise ValueError(f"raw semantic ids not in the {self.name} label map: {bad[:10].tolist()}")
         return out
 
+    def unknown_raw_ids(self, raw: np.ndarray) -> np.ndarray:
+        """Sorted distinct raw semantic ids of ``raw`` ``(N,)`` that ``learning_map`` does not have."""
+        ids = np.unique(np.asarray(raw, dtype=np.int64))
+        known = (ids >= 0) & (ids <= self.max_raw_id)
+        known[known] = self.lut()[ids[known]] >= 0
+        return ids[~known]
+
     def to_raw(self, train: np.ndarray) -> np.ndarray:
         """Map train ids ``(N,)`` to raw ids ``(N,) uint32`` through ``learning_map_inv``."""
         return self.inv_lut()[np.asarray(train, dtype=np.int64)]
@@ -114,35 +123,110 @@ def _int_keys(d: dict, path: str, key: str) -> dict[int, object]:
         raise ConfigError(f"{path}: '{key}' must map integer ids to values") from exc
 
 
+def _train_ids(learning_map: dict[int, int], inv: dict[int, int] | None, source: str) -> int:
+    """The number of train ids, checking that they run 0..C-1 without gaps.
+
+    With ``learning_map_inv`` its keys are the train ids; without it the values of ``learning_map``
+    are. A train id outside that set (a typo such as ``10: 999``) is an error naming the raw id.
+    """
+    bad_raw = [k for k in learning_map if not 0 <= k <= 0xFFFF]
+    if bad_raw:
+        raise ConfigError(f"{source}: learning_map has raw id {bad_raw[0]}, outside 0..65535")
+    ids = set(inv) if inv is not None else set(learning_map.values())
+    n = max(ids) + 1 if ids else 0
+    missing = sorted(set(range(n)) - ids)
+    if not ids or min(ids) < 0 or missing:
+        where = "learning_map_inv's keys" if inv is not None else "learning_map's values"
+        hint = f"; missing {missing[:10]}" if missing else ""
+        if inv is None and missing:
+            top = max(ids)
+            raws = sorted(k for k, v in learning_map.items() if v == top)
+            hint += f" (learning_map sends raw id {raws[0]} to train id {top})"
+        raise ConfigError(f"{source}: {where} must be the train ids 0..C-1 without gaps{hint}")
+    if inv is not None:
+        unknown = sorted((k, v) for k, v in learning_map.items() if v not in ids)
+        if unknown:
+            raw, train = unknown[0]
+            raise ConfigError(
+                f"{source}: learning_map sends raw id {raw} to train id {train}, which learning_map_inv "
+                f"does not have (train ids 0..{n - 1})"
+            )
+    return n
+
+
+def _ids_in_range(values, n: int, source: str, key: str) -> tuple[int, ...]:
+    try:
+        ids = tuple(int(v) for v in values)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: '{key}' must be a list of train ids") from exc
+    bad = [i for i in ids if not 0 <= i < n]
+    if bad:
+        raise ConfigError(f"{source}: '{key}' has train id {bad[0]}, outside 0..{n - 1}")
+    return ids
+
+
+def _learning_ignore(value, n: int, source: str) -> tuple[int, ...]:
+    """Train ids of ``learning_ignore``: a mapping ``{id: bool}`` (SemanticKITTI) or a list of ids."""
+    if value is None:
+        return (0,)
+    if isinstance(value, dict):
+        ids = [k for k, v in _int_keys(value, source, "learning_ignore").items() if v]
+    elif isinstance(value, list | tuple):
+        ids = list(value)
+    else:
+        raise ConfigError(f"{source}: 'learning_ignore' must map train ids to true/false or list train ids")
+    return tuple(sorted(set(_ids_in_range(ids, n, source, "learning_ignore")))) or (0,)
+
+
 def parse_label_map(data: dict, source: str = "<dict>") -> LabelMap:
-    """Build a :class:`LabelMap` from a parsed SemanticKITTI-style YAML mapping."""
+    """Build a :class:`LabelMap` from a parsed SemanticKITTI-style YAML mapping.
+
+    Raises:
+        ConfigError: a required key is missing, train ids are not 0..C-1 without gaps (a
+            ``learning_map`` value such as 999), a thing/stuff/ignore id is out of range, or a
+            value has the wrong type; the message starts with ``source``.
+    """
     for key in ("labels", "learning_map"):
         if key not in data:
             raise ConfigError(f"{source}: missing required key '{key}'")
     labels = {k: str(v) for k, v in _int_keys(data["labels"], source, "labels").items()}
-    learning_map = {k: int(v) for k, v in _int_keys(data["learning_map"], source, "learning_map").items()}
-    n_train = max(learning_map.values()) + 1
+    learning_map = _int_values(
+        _int_keys(data["learning_map"], source, "learning_map"), source, "learning_map"
+    )
+    inv = None
     if "learning_map_inv" in data:
-        inv = {k: int(v) for k, v in _int_keys(data["learning_map_inv"], source, "learning_map_inv").items()}
-    else:
+        inv = _int_values(
+            _int_keys(data["learning_map_inv"], source, "learning_map_inv"), source, "learning_map_inv"
+        )
+    n_train = _train_ids(learning_map, inv, source)
+    if inv is None:
         inv = {}
         for raw, train in sorted(learning_map.items()):
             inv.setdefault(train, raw)
     names_src = data.get("challenge_labels")
     if names_src is not None:
         names = _int_keys(names_src, source, "challenge_labels")
+        missing = [i for i in range(n_train) if i not in names]
+        if missing:
+            raise ConfigError(f"{source}: 'challenge_labels' has no name for train id {missing[0]}")
         class_names = tuple(str(names[i]) for i in range(n_train))
     else:
         class_names = tuple(
             "unlabeled" if i == 0 else labels.get(inv.get(i, -1), f"class_{i}") for i in range(n_train)
         )
-    things = tuple(int(t) for t in data.get("things", range(1, 9)))
-    stuff = tuple(int(s) for s in data.get("stuff", [i for i in range(1, n_train) if i not in things]))
-    split = {str(k): [int(s) for s in v] for k, v in (data.get("split") or {}).items()}
-    color_map = {
-        k: tuple(int(c) for c in v)
-        for k, v in _int_keys(data.get("color_map") or {}, source, "color_map").items()
-    }
+    things = _ids_in_range(data.get("things", range(1, min(9, n_train))), n_train, source, "things")
+    stuff = _ids_in_range(
+        data.get("stuff", [i for i in range(1, n_train) if i not in things]), n_train, source, "stuff"
+    )
+    try:
+        split = {str(k): [int(s) for s in v] for k, v in (data.get("split") or {}).items()}
+        color_map = {
+            k: tuple(int(c) for c in v)
+            for k, v in _int_keys(data.get("color_map") or {}, source, "color_map").items()
+        }
+        min_points = int(data.get("min_points", 50))
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise ConfigError(f"{source}: 'split', 'color_map' or 'min_points' is malformed: {exc}") from exc
     return LabelMap(
         name=str(data.get("name", Path(source).stem)),
         labels=labels,
@@ -151,11 +235,19 @@ def parse_label_map(data: dict, source: str = "<dict>") -> LabelMap:
         class_names=class_names,
         things=things,
         stuff=stuff,
-        min_points=int(data.get("min_points", 50)),
+        min_points=min_points,
         split=split,
         color_map=color_map,  # type: ignore[arg-type]
         source=source,
+        ignore=_learning_ignore(data.get("learning_ignore"), n_train, source),
     )
+
+
+def _int_values(d: dict[int, object], source: str, key: str) -> dict[int, int]:
+    try:
+        return {k: int(v) for k, v in d.items()}  # type: ignore[call-overload]
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: '{key}' must map integer ids to integer ids") from exc
 
 
 def load_label_map(name_or_path: str | Path = "semantic-kitti") -> LabelMap:
@@ -168,6 +260,8 @@ def load_label_map(name_or_path: str | Path = "semantic-kitti") -> LabelMap:
         raise ConfigError(f"{path}: label map file not found (bundled: {sorted(_BUILTIN)})")
     try:
         data = yaml.safe_load(path.read_text())
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a text file: {exc}") from exc
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
     if not isinstance(data, dict):

@@ -7,6 +7,11 @@ Conventions:
     calib ``calib.txt``             line ``Tr:`` is the 3×4 velodyne→camera transform.
     times ``times.txt``             one timestamp (s) per frame.
 LiDAR-frame poses are ``Tr⁻¹ · P · Tr``.
+
+Rows of ``poses.txt`` and ``times.txt`` are paired with scans by frame number, never by position:
+row ``i`` (0-based, counting every line) belongs to scan ``i`` (``NNNNNN.bin`` with ``int(NNNNNN) = i``).
+A gap in the scan numbering therefore skips rows, and a blank line inside the file is a frame
+without a value (an error only when that frame's scan exists); blank lines at the end are ignored.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from dsnet_core.errors import LabelFormatError, PoseFormatError, ScanFormatError
+from dsnet_core.io.checks import check_points
 
 RIGID_TOL = 1e-3
 
@@ -25,7 +31,8 @@ def read_scan(path: str | Path) -> np.ndarray:
     """Read a ``.bin`` scan as float32 ``(N, 4)``.
 
     Raises:
-        ScanFormatError: size not a multiple of 16 bytes, or NaN/inf values.
+        ScanFormatError: size not a multiple of 16 bytes, NaN/inf values, or coordinates beyond
+            :data:`~dsnet_core.io.checks.MAX_COORD_M` (see :func:`~dsnet_core.io.checks.check_points`).
     """
     path = Path(path)
     try:
@@ -37,10 +44,7 @@ def read_scan(path: str | Path) -> np.ndarray:
             path, f"size {len(raw)} bytes is not a multiple of 16 (float32 x, y, z, remission): truncated?"
         )
     scan = np.frombuffer(raw, dtype=np.float32).reshape(-1, 4)
-    finite = np.isfinite(scan)
-    if not finite.all():
-        bad = int((~finite.all(axis=1)).sum())
-        raise ScanFormatError(path, f"{bad} points have NaN or inf values")
+    check_points(path, scan)
     return scan.copy()
 
 
@@ -108,7 +112,7 @@ def read_calib(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise PoseFormatError(path, "calib.txt is missing (needed to turn camera poses into LiDAR poses)")
-    for line in path.read_text().splitlines():
+    for line in _lines(path):
         key, _, values = line.partition(":")
         if key.strip() == "Tr":
             try:
@@ -131,19 +135,20 @@ def write_calib(path: str | Path, tr: np.ndarray) -> None:
     _atomic_write_bytes(Path(path), ("\n".join(lines) + "\n").encode())
 
 
-def read_poses(path: str | Path, n_frames: int | None = None) -> np.ndarray:
-    """Read ``poses.txt`` as float64 ``(F, 4, 4)`` camera-frame poses.
+def read_pose_rows(path: str | Path) -> list[np.ndarray | None]:
+    """Read ``poses.txt`` row by row: entry ``i`` is frame ``i``'s float64 ``(4, 4)`` camera-frame
+    pose, or None where line ``i + 1`` is blank (trailing blank lines are dropped).
 
     Raises:
-        PoseFormatError: file missing, malformed rows, fewer rows than ``n_frames``, or a
-            non-rigid rotation.
+        PoseFormatError: file missing, a row not numeric or not 12 values, or a non-rigid rotation.
     """
     path = Path(path)
     if not path.is_file():
         raise PoseFormatError(path, "poses.txt is missing")
-    rows = []
-    for i, line in enumerate(path.read_text().splitlines()):
+    rows: list[np.ndarray | None] = []
+    for i, line in enumerate(_lines(path)):
         if not line.strip():
+            rows.append(None)
             continue
         try:
             vals = np.array([float(v) for v in line.split()], dtype=np.float64)
@@ -154,6 +159,21 @@ def read_poses(path: str | Path, n_frames: int | None = None) -> np.ndarray:
         pose = _to_4x4(vals)
         _check_rigid(pose, path, f"row {i + 1}")
         rows.append(pose)
+    return rows
+
+
+def read_poses(path: str | Path, n_frames: int | None = None) -> np.ndarray:
+    """Read ``poses.txt`` as float64 ``(F, 4, 4)`` camera-frame poses, row ``i`` = frame ``i``.
+
+    Raises:
+        PoseFormatError: as :func:`read_pose_rows`; also a blank line among the rows, or fewer
+            rows than ``n_frames``.
+    """
+    path = Path(path)
+    rows = read_pose_rows(path)
+    blank = [i for i, r in enumerate(rows) if r is None]
+    if blank:
+        raise PoseFormatError(path, f"line {blank[0] + 1} is blank: row i is frame i's pose")
     if n_frames is not None and len(rows) < n_frames:
         raise PoseFormatError(path, f"has {len(rows)} poses but the sequence has {n_frames} frames")
     return np.stack(rows) if rows else np.zeros((0, 4, 4))
@@ -166,16 +186,42 @@ def write_poses(path: str | Path, poses: np.ndarray) -> None:
     _atomic_write_bytes(Path(path), text.encode())
 
 
-def read_times(path: str | Path, n_frames: int | None = None) -> np.ndarray:
-    """Read ``times.txt`` as float64 ``(F,)`` seconds."""
+def read_time_rows(path: str | Path) -> list[float | None]:
+    """Read ``times.txt`` row by row: entry ``i`` is frame ``i``'s time in seconds, or None where
+    line ``i + 1`` is blank (trailing blank lines are dropped).
+
+    Raises:
+        PoseFormatError: a row that is not one number.
+    """
     path = Path(path)
-    try:
-        times = np.array([float(v) for v in path.read_text().split()], dtype=np.float64)
-    except ValueError as exc:
-        raise PoseFormatError(path, f"not a list of numbers: {exc}") from exc
-    if n_frames is not None and times.size < n_frames:
-        raise PoseFormatError(path, f"has {times.size} timestamps but the sequence has {n_frames} frames")
-    return times
+    rows: list[float | None] = []
+    for i, line in enumerate(_lines(path)):
+        if not line.strip():
+            rows.append(None)
+            continue
+        try:
+            (value,) = (float(v) for v in line.split())
+        except ValueError as exc:
+            raise PoseFormatError(path, f"row {i + 1} is not one number: {line.strip()[:40]!r}") from exc
+        rows.append(value)
+    return rows
+
+
+def read_times(path: str | Path, n_frames: int | None = None) -> np.ndarray:
+    """Read ``times.txt`` as float64 ``(F,)`` seconds, row ``i`` = frame ``i``.
+
+    Raises:
+        PoseFormatError: as :func:`read_time_rows`; also a blank line among the rows, or fewer
+            rows than ``n_frames``.
+    """
+    path = Path(path)
+    rows = read_time_rows(path)
+    blank = [i for i, r in enumerate(rows) if r is None]
+    if blank:
+        raise PoseFormatError(path, f"line {blank[0] + 1} is blank: row i is frame i's timestamp")
+    if n_frames is not None and len(rows) < n_frames:
+        raise PoseFormatError(path, f"has {len(rows)} timestamps but the sequence has {n_frames} frames")
+    return np.asarray(rows, dtype=np.float64)
 
 
 def write_times(path: str | Path, times: np.ndarray) -> None:
@@ -191,6 +237,17 @@ def camera_to_lidar_poses(poses_cam: np.ndarray, tr: np.ndarray) -> np.ndarray:
 def lidar_to_camera_poses(poses_lidar: np.ndarray, tr: np.ndarray) -> np.ndarray:
     """Inverse of :func:`camera_to_lidar_poses`: ``Tr · Q · Tr⁻¹``."""
     return tr[None] @ poses_lidar @ np.linalg.inv(tr)[None]
+
+
+def _lines(path: Path) -> list[str]:
+    """The file's lines without trailing blank ones."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise PoseFormatError(path, f"cannot read: {exc}") from exc
+    while lines and not lines[-1].strip():
+        lines.pop()
+    return lines
 
 
 def _to_4x4(vals: np.ndarray) -> np.ndarray:

@@ -4,16 +4,23 @@ ROOT/sequences/SS/velodyne/NNNNNN.bin
 ROOT/sequences/SS/labels/NNNNNN.label      (optional)
 ROOT/sequences/SS/poses.txt + calib.txt    (optional, together)
 ROOT/sequences/SS/times.txt                (optional)
+
+Scans are the regular files ``velodyne/<digits>.bin``; the digits are the frame number, and row
+``i`` of ``poses.txt``/``times.txt`` belongs to frame number ``i`` (KITTI's convention; a gap in
+the numbering skips rows). Hidden entries of ``velodyne/`` (names starting with ``.``, such as
+macOS ``._000001.bin``) and files not ending in ``.bin`` are ignored; any other ``*.bin`` entry
+(``000001 (copy).bin``, a folder named ``000004.bin``) is a :class:`SequenceLayoutError` naming it.
 """
 
 from __future__ import annotations
 
+import re
 from functools import cache
 from pathlib import Path
 
 import numpy as np
 
-from dsnet_core.errors import LabelFormatError, SequenceLayoutError
+from dsnet_core.errors import LabelFormatError, PoseFormatError, SequenceLayoutError
 from dsnet_core.io import kitti
 from dsnet_core.io.reader import FrameRef
 from dsnet_core.labels import LabelMap, load_label_map
@@ -38,7 +45,6 @@ class SemanticKittiReader:
         self.format = "semantickitti"
         self.label_map = label_map or load_label_map("semantic-kitti")
         self.check_labels = check_labels
-        self._lut = self.label_map.lut()
         if not (self.root / "sequences").is_dir():
             raise SequenceLayoutError(self.root, "no 'sequences/' folder (expected the SemanticKITTI layout)")
         self._poses = cache(self._load_poses)
@@ -63,23 +69,25 @@ class SemanticKittiReader:
             n_points = self._scan_points(frame)
         label = kitti.read_label(path, n_points)
         if self.check_labels:
-            sem = (label & 0xFFFF).astype(np.int64)
-            bad = sem > self.label_map.max_raw_id
-            bad[~bad] = self._lut[sem[~bad]] < 0
-            if bad.any():
-                ids = np.unique(sem[bad])[:10].tolist()
-                raise LabelFormatError(
-                    path, f"raw semantic ids {ids} are not in the {self.label_map.name} label map"
-                )
+            check_raw_ids(path, label, self.label_map)
         return label
 
     def pose(self, frame: FrameRef) -> np.ndarray | None:
-        poses = self._poses(frame.sequence)
-        return None if poses is None else poses[frame.index]
+        """Row ``int(frame_id)`` of ``poses.txt`` as a LiDAR-frame pose.
+
+        Raises:
+            PoseFormatError: the file has no pose for this frame (short, or a blank line there).
+        """
+        table = self._poses(frame.sequence)
+        if table is None:
+            return None
+        rows, tr = table
+        cam = self._row(rows, frame, "poses.txt", "pose")
+        return kitti.camera_to_lidar_poses(cam[None], tr)[0]
 
     def timestamp(self, frame: FrameRef) -> float | None:
-        times = self._times(frame.sequence)
-        return None if times is None else float(times[frame.index])
+        rows = self._times(frame.sequence)
+        return None if rows is None else float(self._row(rows, frame, "times.txt", "timestamp"))
 
     # -- helpers --------------------------------------------------------------------------
     def seq_dir(self, sequence: str) -> Path:
@@ -89,8 +97,27 @@ class SemanticKittiReader:
         return (self.seq_dir(sequence) / "poses.txt").is_file()
 
     def poses(self, sequence: str) -> np.ndarray | None:
-        """float64 ``(F, 4, 4)`` LiDAR-frame poses of a sequence, or None."""
-        return self._poses(sequence)
+        """float64 ``(F, 4, 4)`` LiDAR-frame poses of a sequence's frames (by frame number), or None.
+
+        Raises:
+            PoseFormatError: a frame has no row in ``poses.txt``.
+        """
+        if self._poses(sequence) is None:
+            return None
+        return np.stack([self.pose(f) for f in self._frames(sequence)])
+
+    def _row(self, rows: list, frame: FrameRef, name: str, what: str):
+        number = int(frame.frame_id)
+        value = rows[number] if number < len(rows) else None
+        if value is None:
+            path = self.seq_dir(frame.sequence) / name
+            where = f"line {number + 1} is blank" if number < len(rows) else f"it has {len(rows)} rows"
+            raise PoseFormatError(
+                path,
+                f"no {what} for frame {frame.frame_id} ({frame.scan_path.name}): {where}, and row i "
+                f"of {name} is frame i's {what}",
+            )
+        return value
 
     def _inside(self, path: Path) -> Path:
         resolved = Path(path).resolve()
@@ -107,7 +134,7 @@ class SemanticKittiReader:
         if not seq.is_dir():
             raise SequenceLayoutError(seq, "sequence folder does not exist")
         velo = seq / "velodyne"
-        scans = sorted(velo.glob("*.bin")) if velo.is_dir() else []
+        scans = _scan_files(velo) if velo.is_dir() else []
         if not scans:
             raise SequenceLayoutError(velo, "sequence has no scans (velodyne/*.bin)")
         label_dir = seq / "labels"
@@ -125,20 +152,60 @@ class SemanticKittiReader:
             )
         return tuple(refs)
 
-    def _load_poses(self, sequence: str) -> np.ndarray | None:
+    def _load_poses(self, sequence: str) -> tuple[list[np.ndarray | None], np.ndarray] | None:
+        """(camera-frame pose rows of ``poses.txt``, ``Tr``), or None without ``poses.txt``."""
         seq = self.seq_dir(sequence)
         if not (seq / "poses.txt").is_file():
             return None
-        n = len(self._frames(sequence))
-        cam = kitti.read_poses(seq / "poses.txt", n_frames=n)
-        tr = kitti.read_calib(seq / "calib.txt")
-        return kitti.camera_to_lidar_poses(cam[:n], tr)
+        return kitti.read_pose_rows(seq / "poses.txt"), kitti.read_calib(seq / "calib.txt")
 
-    def _load_times(self, sequence: str) -> np.ndarray | None:
+    def _load_times(self, sequence: str) -> list[float | None] | None:
         path = self.seq_dir(sequence) / "times.txt"
-        if not path.is_file():
-            return None
-        return kitti.read_times(path, n_frames=len(self._frames(sequence)))
+        return kitti.read_time_rows(path) if path.is_file() else None
+
+
+_SCAN_NAME = re.compile(r"[0-9]+\.bin")
+
+
+def _scan_files(velo: Path) -> list[Path]:
+    """The scans of a ``velodyne/`` folder, sorted by frame number (see the module's rule).
+
+    Raises:
+        SequenceLayoutError: a ``*.bin`` entry that is not a regular file named ``<digits>.bin``,
+            or two names with the same frame number (``1.bin`` and ``000001.bin``).
+    """
+    scans: dict[int, Path] = {}
+    for entry in sorted(velo.iterdir()):
+        name = entry.name
+        if name.startswith(".") or not name.endswith(".bin"):
+            continue
+        if not _SCAN_NAME.fullmatch(name):
+            raise SequenceLayoutError(
+                entry, "not a scan name: scans are <frame number>.bin (digits only); move it out of velodyne/"
+            )
+        if not entry.is_file():
+            raise SequenceLayoutError(entry, "is not a regular file (scans are files <frame number>.bin)")
+        number = int(entry.stem)
+        if number in scans:
+            raise SequenceLayoutError(entry, f"frame number {number} is also {scans[number].name}")
+        scans[number] = entry
+    return [scans[n] for n in sorted(scans)]
+
+
+def check_raw_ids(path: str | Path, label: np.ndarray, label_map: LabelMap) -> None:
+    """Refuse a label file holding raw semantic ids ``label_map`` does not know.
+
+    Args:
+        label: uint32 ``(N,)`` raw semantic | instance << 16.
+
+    Raises:
+        LabelFormatError: naming ``path``, up to ten unknown ids and the map.
+    """
+    bad = label_map.unknown_raw_ids(np.asarray(label, dtype=np.uint32) & 0xFFFF)
+    if bad.size:
+        raise LabelFormatError(
+            path, f"raw semantic ids {bad[:10].tolist()} are not in the {label_map.name} label map"
+        )
 
 
 def write_sequence_meta(

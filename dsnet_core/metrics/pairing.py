@@ -16,26 +16,34 @@ import numpy as np
 
 from dsnet_core.errors import LabelFormatError, SequenceLayoutError
 from dsnet_core.io import kitti
+from dsnet_core.io.semantickitti import check_raw_ids
+from dsnet_core.labels import LabelMap
 
 
 @dataclass(frozen=True)
 class LabelPair:
-    """One frame to score: its sequence, name and the two label files."""
+    """One frame to score: its sequence, name and the two label files; with ``label_map``, raw
+    semantic ids the map does not know are refused in either file (as ``dsnet describe`` does)."""
 
     sequence: str
     frame: str
     gt_path: Path
     pred_path: Path
+    label_map: LabelMap | None = None
 
     def read(self) -> tuple[np.ndarray, np.ndarray]:
         """``(gt, pred)`` uint32 ``(N,)`` labels.
 
         Raises:
-            LabelFormatError: a file is unreadable or truncated, or the prediction's length
-                differs from the ground truth's (the message names the prediction file).
+            LabelFormatError: a file is unreadable or truncated, holds raw ids the label map does
+                not know, or the prediction's length differs from the ground truth's (the message
+                names the file).
         """
         gt = kitti.read_label(self.gt_path)
         pred = kitti.read_label(self.pred_path)
+        if self.label_map is not None:
+            check_raw_ids(self.gt_path, gt, self.label_map)
+            check_raw_ids(self.pred_path, pred, self.label_map)
         if pred.shape != gt.shape:
             raise LabelFormatError(
                 self.pred_path,
@@ -53,8 +61,16 @@ def sequence_names(sequences: Iterable[int | str]) -> list[str]:
     return out
 
 
-def pair_label_files(gt_root: str | Path, pred_root: str | Path, sequences: Iterable[str]) -> list[LabelPair]:
+def pair_label_files(
+    gt_root: str | Path,
+    pred_root: str | Path,
+    sequences: Iterable[str],
+    label_map: LabelMap | None = None,
+) -> list[LabelPair]:
     """List every (gt, prediction) label pair of ``sequences``, sorted by sequence then frame.
+
+    Args:
+        label_map: when given, reading a pair refuses raw ids the map does not know.
 
     Raises:
         SequenceLayoutError: a sequence folder is missing, has no labels, a ground-truth frame
@@ -87,7 +103,7 @@ def pair_label_files(gt_root: str | Path, pred_root: str | Path, sequences: Iter
                 f"prediction has no ground truth {gt_dir / (extra[0] + '.label')} "
                 f"({len(extra)} extra in sequence {seq})",
             )
-        pairs.extend(LabelPair(seq, name, gts[name], preds[name]) for name in sorted(gts))
+        pairs.extend(LabelPair(seq, name, gts[name], preds[name], label_map) for name in sorted(gts))
     return pairs
 
 

@@ -3,7 +3,8 @@ content digest (what the ``infer`` stage puts in its fingerprint).
 
 A checkpoint folder (see :mod:`dsnet_core.model.checkpoint`) may also hold::
 
-    CKPT/shift.safetensors    the dynamic-shifting MLPs (``DynamicShift.state_dict()``), optional
+    CKPT/shift.safetensors    the dynamic-shifting MLPs (``DynamicShift.state_dict()``), optional;
+                              its sha256 is in the card (``shift_sha256``) and checked on load
 
 The bundled models live in the package at ``dsnet_core/data/models/tiny/`` (single scans) and
 ``dsnet_core/data/models/tiny-4d/`` (2-scan fine-tune), shipped by ``pyproject``'s package data.
@@ -20,9 +21,15 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 
-from dsnet_core.model.checkpoint import CheckpointError, read_card, save_tensors, sha256_file
+from dsnet_core.model.checkpoint import (
+    SHIFT_WEIGHTS,
+    CheckpointError,
+    read_card,
+    save_tensors,
+    sha256_file,
+    write_card,
+)
 
-SHIFT_WEIGHTS = "shift.safetensors"
 BUNDLED_NAME = "tiny"
 BUNDLED_4D_NAME = "tiny-4d"
 
@@ -86,10 +93,13 @@ def checkpoint_digest(path: str | Path) -> str:
 
 
 def save_shift_weights(path: str | Path, module: torch.nn.Module) -> Path:
-    """Write a :class:`~dsnet_core.instance.shifting.DynamicShift`'s weights into checkpoint ``path``."""
+    """Write a :class:`~dsnet_core.instance.shifting.DynamicShift`'s weights into checkpoint ``path``
+    and record their sha256 in its card (when the folder has one)."""
     out = Path(path) / SHIFT_WEIGHTS
     bandwidths = ",".join(str(b) for b in getattr(module, "bandwidths", ()))
     save_tensors(module.state_dict(), out, metadata={"bandwidths": bandwidths})
+    if (Path(path) / "card.json").is_file():
+        write_card(path, read_card(path))
     return out
 
 
@@ -97,11 +107,21 @@ def load_shift_weights(path: str | Path) -> dict[str, torch.Tensor] | None:
     """The shifting MLPs' state dict stored with checkpoint ``path``, or None if it has none.
 
     Raises:
-        CheckpointError: the file exists but cannot be read.
+        CheckpointError: the file exists but its sha256 is not the card's ``shift_sha256``
+            (tampered, half-written, or saved by a version whose cards did not record it), or it
+            cannot be read.
     """
     file = Path(path) / SHIFT_WEIGHTS
     if not file.is_file():
         return None
+    card = read_card(path)
+    if sha256_file(file) != card.shift_sha256:
+        recorded = card.shift_sha256[:12] or "none"
+        raise CheckpointError(
+            file,
+            f"shifting weights do not match the model card's shift_sha256 ({recorded}): tampered, "
+            "half-written, or saved before cards recorded it",
+        )
     try:
         return load_file(str(file))
     except (SafetensorError, OSError) as exc:

@@ -3,7 +3,8 @@
 A checkpoint is a folder::
 
     CKPT/model.safetensors    weights (and BN buffers)
-    CKPT/card.json            the model card, written last; holds the weights' sha256
+    CKPT/card.json            the model card, written last; holds the weights' sha256 (and
+                              that of ``shift.safetensors`` when the folder has one)
     CKPT/train_state.*        optimiser state and schedule position (training only)
 
 Every file is written to a temporary name and renamed into place, so a killed writer leaves
@@ -30,6 +31,7 @@ from dsnet_core.model.presets import ModelConfig
 
 FORMAT = "dsnet-checkpoint/1"
 WEIGHTS, CARD = "model.safetensors", "card.json"
+SHIFT_WEIGHTS = "shift.safetensors"
 
 
 @dataclass
@@ -44,6 +46,7 @@ class ModelCard:
         metrics: validation metrics, one dict per epoch.
         code_version: git commit (or package version) that wrote it.
         weights_sha256: hash of ``model.safetensors``.
+        shift_sha256: hash of ``shift.safetensors`` (:mod:`dsnet_core.model.bundle`), "" without one.
     """
 
     architecture: dict
@@ -53,6 +56,7 @@ class ModelCard:
     metrics: list = field(default_factory=list)
     code_version: str = ""
     weights_sha256: str = ""
+    shift_sha256: str = ""
     format: str = FORMAT
 
     @property
@@ -127,8 +131,16 @@ def save_checkpoint(path: str | Path, model: DSNet, card: ModelCard) -> Path:
     card.weights_sha256 = sha256_file(path / WEIGHTS)
     card.architecture = model.config.to_dict()
     card.code_version = card.code_version or code_version()
-    _atomic_write_text(path / CARD, json.dumps(card.__dict__, indent=2, sort_keys=True))
+    write_card(path, card)
     return path
+
+
+def write_card(path: str | Path, card: ModelCard) -> None:
+    """Write ``CKPT/card.json`` atomically, recording the sha256 of ``shift.safetensors`` if present."""
+    path = Path(path)
+    shift = path / SHIFT_WEIGHTS
+    card.shift_sha256 = sha256_file(shift) if shift.is_file() else ""
+    _atomic_write_text(path / CARD, json.dumps(card.__dict__, indent=2, sort_keys=True))
 
 
 def read_card(path: str | Path) -> ModelCard:

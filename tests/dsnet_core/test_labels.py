@@ -49,3 +49,53 @@ def test_custom_yaml_and_errors(tmp_path):
     bad.write_text("labels: {0: x}\n")
     with pytest.raises(ConfigError, match=r"bad.yaml: missing required key 'learning_map'"):
         load_label_map(bad)
+
+
+def _write(tmp_path, text: str):
+    f = tmp_path / "map.yaml"
+    f.write_text(text)
+    return f
+
+
+BASE = "labels: {0: unlabeled, 5: a, 6: b}\nthings: [1]\n"
+
+
+def test_train_id_typo_is_refused_not_a_1000_class_map(tmp_path):
+    f = _write(tmp_path, BASE + "learning_map: {0: 0, 5: 1, 6: 999}\n")
+    with pytest.raises(ConfigError, match=r"map\.yaml: .*missing \[2, 3, .*raw id 6 to train id 999"):
+        load_label_map(f)
+    f = _write(tmp_path, BASE + "learning_map: {0: 0, 5: 1, 6: 999}\nlearning_map_inv: {0: 0, 1: 5}\n")
+    with pytest.raises(ConfigError, match=r"map\.yaml: learning_map sends raw id 6 to train id 999"):
+        load_label_map(f)
+    f = _write(tmp_path, BASE + "learning_map: {0: 0, 5: 1, 6: 2}\nthings: [7]\n")
+    with pytest.raises(ConfigError, match=r"map\.yaml: 'things' has train id 7, outside 0\.\.2"):
+        load_label_map(f)
+
+
+@pytest.mark.parametrize(
+    "ignore, expected", [("[0, 2]", (0, 2)), ("{0: true, 1: false, 2: true}", (0, 2)), ("[]", (0,))]
+)
+def test_learning_ignore_as_list_or_mapping(tmp_path, ignore, expected):
+    f = _write(tmp_path, BASE + f"learning_map: {{0: 0, 5: 1, 6: 2}}\nlearning_ignore: {ignore}\n")
+    assert load_label_map(f).ignore == expected
+
+
+def test_learning_ignore_errors(tmp_path):
+    f = _write(tmp_path, BASE + "learning_map: {0: 0, 5: 1, 6: 2}\nlearning_ignore: [0, 5]\n")
+    with pytest.raises(ConfigError, match=r"map\.yaml: 'learning_ignore' has train id 5, outside 0\.\.2"):
+        load_label_map(f)
+    f = _write(tmp_path, BASE + "learning_map: {0: 0, 5: 1, 6: 2}\nlearning_ignore: yes please\n")
+    with pytest.raises(ConfigError, match=r"map\.yaml: 'learning_ignore' must map train ids"):
+        load_label_map(f)
+
+
+def test_bundled_maps_ignore_class_zero():
+    assert load_label_map("semantic-kitti").ignore == (0,)
+    assert load_label_map("panoptic-nuscenes").ignore == (0,)
+
+
+def test_binary_file_is_a_config_error(tmp_path):
+    f = tmp_path / "map.yaml"
+    f.write_bytes(b"labels: \xff\xfe\x00")
+    with pytest.raises(ConfigError, match=r"map\.yaml: not a text file"):
+        load_label_map(f)

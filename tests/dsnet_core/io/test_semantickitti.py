@@ -79,6 +79,17 @@ def test_nan_scan(tmp_path):
         kitti.read_scan(f)
 
 
+def test_far_points_name_the_scan(tmp_path):
+    seq_dir = make_log(tmp_path)
+    f = seq_dir / "velodyne" / "000001.bin"
+    scan = kitti.read_scan(f)
+    scan[4, 2] = 1e30
+    kitti.write_scan(f, scan)
+    reader = SemanticKittiReader(tmp_path)
+    with pytest.raises(ScanFormatError, match=r"000001\.bin: 1 points lie beyond 10000 m .*point 4"):
+        reader.scan(reader.frames("00")[1])
+
+
 def test_label_length_mismatch(tmp_path):
     seq_dir = make_log(tmp_path)
     f = seq_dir / "labels" / "000002.label"
@@ -105,8 +116,82 @@ def test_short_poses(tmp_path):
     lines = (seq_dir / "poses.txt").read_text().splitlines()
     (seq_dir / "poses.txt").write_text("\n".join(lines[:2]) + "\n")
     reader = SemanticKittiReader(tmp_path)
+    frames = reader.frames("00")
+    np.testing.assert_allclose(reader.pose(frames[1]), _yaw(0.1, 2.0), atol=1e-9)  # rows 0, 1 are there
+    with pytest.raises(PoseFormatError, match=r"00/poses\.txt: no pose for frame 000002 .*it has 2 rows"):
+        reader.pose(frames[2])
+    with pytest.raises(PoseFormatError, match=r"00/poses\.txt: no pose for frame 000002"):
+        reader.poses("00")
     with pytest.raises(PoseFormatError, match=r"poses\.txt: has 2 poses but the sequence has 3 frames"):
-        reader.pose(reader.frames("00")[0])
+        kitti.read_poses(seq_dir / "poses.txt", n_frames=3)
+
+
+def test_gap_in_scan_numbering_pairs_poses_by_frame_number(tmp_path):
+    """Scan 000001 missing: frame 000002 gets row 2 of poses.txt and times.txt, not row 1."""
+    seq_dir = make_log(tmp_path, n_frames=4)
+    (seq_dir / "velodyne" / "000001.bin").unlink()
+    (seq_dir / "labels" / "000001.label").unlink()
+    reader = SemanticKittiReader(tmp_path)
+    frames = reader.frames("00")
+    assert [(f.frame_id, f.index) for f in frames] == [("000000", 0), ("000002", 1), ("000003", 2)]
+    np.testing.assert_allclose(reader.pose(frames[1]), _yaw(0.2, 4.0), atol=1e-9)
+    np.testing.assert_allclose(reader.poses("00")[2], _yaw(0.3, 6.0), atol=1e-9)
+    assert reader.timestamp(frames[1]) == pytest.approx(0.2)
+
+
+def test_blank_line_in_poses_does_not_shift_later_rows(tmp_path):
+    seq_dir = make_log(tmp_path, n_frames=4)
+    lines = (seq_dir / "poses.txt").read_text().splitlines()
+    lines[1] = ""  # frame 1 loses its pose; frames 2 and 3 keep theirs
+    (seq_dir / "poses.txt").write_text("\n".join(lines) + "\n\n\n")  # trailing blank lines are fine
+    reader = SemanticKittiReader(tmp_path)
+    frames = reader.frames("00")
+    np.testing.assert_allclose(reader.pose(frames[2]), _yaw(0.2, 4.0), atol=1e-9)
+    np.testing.assert_allclose(reader.pose(frames[3]), _yaw(0.3, 6.0), atol=1e-9)
+    with pytest.raises(PoseFormatError, match=r"00/poses\.txt: no pose for frame 000001 .*line 2 is blank"):
+        reader.pose(frames[1])
+    with pytest.raises(PoseFormatError, match=r"poses\.txt: line 2 is blank"):
+        kitti.read_poses(seq_dir / "poses.txt")
+    # the same blank line where the scan is missing is harmless
+    (seq_dir / "velodyne" / "000001.bin").unlink()
+    reader = SemanticKittiReader(tmp_path)
+    assert reader.poses("00").shape == (3, 4, 4)
+
+
+def test_blank_line_in_times(tmp_path):
+    seq_dir = make_log(tmp_path, n_frames=3)
+    (seq_dir / "times.txt").write_text("0.0\n\n0.2\n")
+    reader = SemanticKittiReader(tmp_path)
+    frames = reader.frames("00")
+    assert reader.timestamp(frames[2]) == pytest.approx(0.2)
+    with pytest.raises(PoseFormatError, match=r"times\.txt: no timestamp for frame 000001 .*line 2 is blank"):
+        reader.timestamp(frames[1])
+
+
+@pytest.mark.parametrize(
+    "name, kind, message",
+    [
+        ("000001 (copy).bin", "file", r"velodyne/000001 \(copy\)\.bin: not a scan name"),
+        ("000004.bin", "dir", r"velodyne/000004\.bin: is not a regular file"),
+        ("1.bin", "file", r"velodyne/1\.bin: frame number 1 is also 000001\.bin"),
+    ],
+)
+def test_stray_entries_in_velodyne_are_named(tmp_path, name, kind, message):
+    seq_dir = make_log(tmp_path)
+    stray = seq_dir / "velodyne" / name
+    stray.mkdir() if kind == "dir" else stray.write_bytes((seq_dir / "velodyne" / "000001.bin").read_bytes())
+    reader = SemanticKittiReader(tmp_path)
+    with pytest.raises(SequenceLayoutError, match=message):
+        reader.frames("00")
+
+
+def test_hidden_and_other_files_in_velodyne_are_ignored(tmp_path):
+    seq_dir = make_log(tmp_path)
+    (seq_dir / "velodyne" / "._000001.bin").write_bytes(b"\x00\x05\x16\x07" * 3)  # macOS AppleDouble
+    (seq_dir / "velodyne" / "README.txt").write_text("scans\n")
+    reader = SemanticKittiReader(tmp_path)
+    assert [f.frame_id for f in reader.frames("00")] == ["000000", "000001", "000002"]
+    assert reader.poses("00").shape == (3, 4, 4)
 
 
 def test_non_rigid_pose(tmp_path):

@@ -64,3 +64,21 @@ def test_bundled_model_segments_a_scan_no_training_saw(held_out_scan):
     meter.add(res.sem, truth)
     assert meter.miou() > MIOU_FLOOR
     assert res.offsets.shape == (len(points), 3) and res.features.shape == (len(points), 32)
+
+
+def test_scaled_shift_weights_are_refused_naming_the_file(tmp_path):
+    from safetensors.torch import save_file
+
+    from dsnet_core.errors import CheckpointError
+    from dsnet_core.model.checkpoint import read_card
+    from tests.model_helpers import make_checkpoint
+
+    ckpt = make_checkpoint(tmp_path / "ckpt")
+    good = load_shift_weights(ckpt)
+    assert read_card(ckpt).shift_sha256 and good is not None
+    save_file({k: 2 * v for k, v in good.items()}, str(ckpt / "shift.safetensors"))  # scaled in place
+    with pytest.raises(CheckpointError, match=r"ckpt/shift\.safetensors: shifting weights do not match"):
+        load_shift_weights(ckpt)
+    (ckpt / "shift.safetensors").write_bytes(b"")  # truncated
+    with pytest.raises(CheckpointError, match=r"shift\.safetensors: shifting weights do not match"):
+        load_shift_weights(ckpt)

@@ -1,0 +1,39 @@
+"""Checks every reader applies to the points it hands out, whatever the log's format."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from dsnet_core.errors import ScanFormatError
+
+MAX_COORD_M = 1.0e4
+"""Largest accepted ``|x|``, ``|y|``, ``|z|`` of a sensor-frame point, metres. LiDARs see a few
+hundred metres; anything beyond 10 km is a corrupt value (a bit flip, an uninitialised buffer), and
+values near float32's limit overflow to inf once transformed into the world frame."""
+
+
+def check_points(path: str | Path, scan: np.ndarray, max_coord: float = MAX_COORD_M) -> None:
+    """Reject a scan holding NaN/inf values or coordinates beyond ``max_coord``.
+
+    Args:
+        path: the file the scan came from (named in the error).
+        scan: float32 ``(N, C)``, columns 0..2 are x, y, z in metres (sensor frame).
+        max_coord: largest accepted absolute coordinate, metres.
+
+    Raises:
+        ScanFormatError: naming ``path``, the number of bad points and the first one's index.
+    """
+    finite = np.isfinite(scan).all(axis=1)
+    if not finite.all():
+        n_bad, first = int((~finite).sum()), int(np.argmin(finite))
+        raise ScanFormatError(path, f"{n_bad} points have NaN or inf values (first: point {first})")
+    far = (np.abs(scan[:, :3]) > max_coord).any(axis=1)
+    if far.any():
+        first = int(np.argmax(far))
+        raise ScanFormatError(
+            path,
+            f"{int(far.sum())} points lie beyond {max_coord:g} m of the sensor (first: point {first} at "
+            f"{np.array2string(scan[first, :3], precision=3)}): corrupt coordinates",
+        )

@@ -110,12 +110,25 @@ def voxelize(clouds: list[torch.Tensor], grid: CylinderGrid) -> Voxelized:
     Returns:
         The :class:`Voxelized` batch; points are concatenated in the order of ``clouds``.
     """
-    cells_l, feats_l, batch_l = [], [], []
-    for b, pts in enumerate(clouds):
+    cells_l, feats_l = [], []
+    for pts in clouds:
         cells, feats = cylinder_features(pts, grid)
         cells_l.append(cells)
         feats_l.append(feats)
-        batch_l.append(torch.full((cells.shape[0],), b, dtype=torch.int64, device=cells.device))
+    return voxelize_cells(cells_l, feats_l, grid)
+
+
+def voxelize_cells(cells_l: list[torch.Tensor], feats_l: list[torch.Tensor], grid: CylinderGrid) -> Voxelized:
+    """Voxelise clouds whose cells and point features are already computed (batch index = list
+    position; the equivariant lifting passes each rotated copy as its own batch entry).
+
+    Args:
+        cells_l: int64 ``(N_b, 3)`` cell indices per cloud; feats_l: float ``(N_b, F)`` features.
+        grid: the grid (its size gives the voxel keys).
+    """
+    batch_l = [
+        torch.full((c.shape[0],), b, dtype=torch.int64, device=c.device) for b, c in enumerate(cells_l)
+    ]
     cells = torch.cat(cells_l)
     batch = torch.cat(batch_l)
     s0, s1, s2 = grid.size
@@ -129,5 +142,5 @@ def voxelize(clouds: list[torch.Tensor], grid: CylinderGrid) -> Voxelized:
         point_cells=cells,
         coords=coords,
         point_to_voxel=inverse,
-        batch_size=len(clouds),
+        batch_size=len(cells_l),
     )

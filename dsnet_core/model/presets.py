@@ -19,6 +19,12 @@ class ModelConfig:
         compress: voxel feature width after max-pooling and compression.
         ins_dim: width of the per-point instance feature handed to the shifting module.
         grid: the cylindrical grid.
+        prior_channels: per-point semantic-prior channels appended to the 9 point features
+            (D-PLS's prior-conditioned instance network; 0 = none).
+        semantic_head: whether the network predicts semantics (a D-PLS instance network does not:
+            its semantics are the prior's).
+        equivariant: ``n`` of the C_n lifting (``dsnet_core.model.equivariant``); 1 = plain.
+        pooling: invariant pooling of the semantic logits over the n rotations, "mean" or "max".
     """
 
     width: int = 32
@@ -27,11 +33,28 @@ class ModelConfig:
     compress: int = 16
     ins_dim: int = 32
     grid: CylinderGrid = field(default_factory=CylinderGrid)
+    prior_channels: int = 0
+    semantic_head: bool = True
+    equivariant: int = 1
+    pooling: str = "mean"
+
+    def __post_init__(self) -> None:
+        if self.prior_channels < 0:
+            raise ConfigError(f"prior_channels must be >= 0, got {self.prior_channels}")
+        if self.equivariant < 1:
+            raise ConfigError(f"--equivariant needs n >= 1, got {self.equivariant}")
+        if self.pooling not in POOLINGS:
+            raise ConfigError(f"unknown invariant pooling '{self.pooling}' (choose {', '.join(POOLINGS)})")
 
     def to_dict(self) -> dict:
+        """The architecture as a card records it. The D-PLS and equivariant fields appear only when
+        they differ from a plain DS-Net's, so cards written before they existed compare equal."""
         d = asdict(self)
         d["point_mlp"] = list(self.point_mlp)
         d["grid"] = self.grid.to_dict()
+        for key, default in _OPTIONAL.items():
+            if d[key] == default:
+                del d[key]
         return d
 
     @classmethod
@@ -44,9 +67,14 @@ class ModelConfig:
                 compress=int(d["compress"]),
                 ins_dim=int(d["ins_dim"]),
                 grid=CylinderGrid.from_dict(d["grid"]),
+                **{key: type(default)(d.get(key, default)) for key, default in _OPTIONAL.items()},
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError(f"invalid model config {d!r}: {exc}") from exc
+
+
+POOLINGS = ("mean", "max")
+_OPTIONAL = {"prior_channels": 0, "semantic_head": True, "equivariant": 1, "pooling": "mean"}
 
 
 PRESETS: dict[str, ModelConfig] = {

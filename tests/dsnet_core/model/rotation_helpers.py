@@ -40,12 +40,12 @@ def away_from_cell_boundaries(
     return pts.astype(np.float32)
 
 
-def rotate64(points: np.ndarray, angle: float) -> np.ndarray:
-    """Rotate float32 ``(N, ≥3)`` points by ``angle`` about z in float64; float32 out."""
+def rotate64(points: np.ndarray, angle: float, dtype=np.float32) -> np.ndarray:
+    """Rotate ``(N, ≥3)`` points by ``angle`` about z in float64; ``dtype`` out."""
     c, s = math.cos(angle), math.sin(angle)
     out = points.astype(np.float64).copy()
     out[:, :2] = points[:, :2].astype(np.float64) @ np.array([[c, -s], [s, c]]).T
-    return out.astype(np.float32)
+    return out.astype(dtype)
 
 
 def rotate_vectors(v: torch.Tensor, angle: float) -> torch.Tensor:

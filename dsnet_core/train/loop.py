@@ -30,6 +30,7 @@ from dsnet_core.model.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from dsnet_core.model.equivariant import equivariant_offset_loss
 from dsnet_core.model.losses import (
     class_weights,
     instance_centres,
@@ -52,6 +53,8 @@ from dsnet_core.train.state import load_train_state, save_train_state
 
 log = logging.getLogger(__name__)
 STAGES = ("semantic", "offset", "shift")
+INSTANCE_PARAMS = ("ins_head.", "anchor_head.")
+"""Parameters the offset stage trains (the equivariant network's anchor scores included)."""
 
 
 @dataclass
@@ -285,7 +288,8 @@ class Trainer:
     def _optimizer(self, stage: str) -> torch.optim.Optimizer:
         head = stage == "offset"
         for name, p in self.model.named_parameters():
-            p.requires_grad_(name.startswith("ins_head.") if head else not name.startswith("ins_head."))
+            instance = name.startswith(INSTANCE_PARAMS)
+            p.requires_grad_(instance if head else not instance)
         params = [p for p in self.model.parameters() if p.requires_grad]
         return torch.optim.Adam(params, lr=self.cfg.lr)
 
@@ -343,6 +347,8 @@ class Trainer:
         keys = np.concatenate([s.inst + (b << 40) * (s.inst > 0) for b, s in enumerate(samples)])
         valid = torch.from_numpy(np.concatenate([s.thing for s in samples])).to(self.device)
         centres = instance_centres(xyz, torch.from_numpy(keys).to(self.device), valid)
+        if out.anchor_scores is not None:  # equivariant: eq. 9 + the offset in the anchor's frame
+            return equivariant_offset_loss(out.anchor_scores, out.anchor_offsets, xyz, centres, valid)
         return offset_loss(out.offsets, xyz, centres, valid)
 
     # -- validation and files --------------------------------------------------------------

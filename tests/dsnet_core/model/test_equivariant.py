@@ -22,6 +22,14 @@ from dsnet_core.model.network import DSNet
 from tests.dsnet_core.model.rotation_helpers import CFG, GRID, away_from_cell_boundaries, calibrated, rotate64
 
 
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 def _net(n: int, pooling: str = "mean", seed: int = 0, **kw) -> DSNet:
     torch.manual_seed(seed)
     cfg = dataclasses.replace(CFG, equivariant=n, pooling=pooling, **kw)

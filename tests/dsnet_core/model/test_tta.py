@@ -20,6 +20,14 @@ from tests.dsnet_core.model.rotation_helpers import (
 )
 
 
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def net():
     torch.manual_seed(0)

@@ -34,6 +34,23 @@ class SequenceLayoutError(DataFormatError):
     """A sequence folder is empty, missing, or a path escapes the dataset root."""
 
 
+class IntensityFormatError(ScanFormatError):
+    """A scan's intensity column has a type or range its stated convention cannot hold."""
+
+
+class PointFileFormatError(ScanFormatError):
+    """A point-cloud file (PCD, PLY, LAS, NPY/NPZ, bin) is malformed: truncated body, unknown
+    encoding, or no x/y/z."""
+
+
+class TableFormatError(DataFormatError):
+    """A log's index tables (nuScenes JSON tables) are malformed or point at missing files."""
+
+
+class BagFormatError(DataFormatError):
+    """A ROS bag cannot be read as a log: no or several PointCloud2 topics, unreadable messages."""
+
+
 class CheckpointError(DataFormatError):
     """A checkpoint is missing, unreadable or tampered with."""
 
@@ -44,3 +61,10 @@ class CheckpointMismatchError(CheckpointError):
 
 class ConfigError(DsnetError):
     """A configuration file or value is invalid."""
+
+
+class MissingExtraError(DsnetError):
+    """An optional dependency is not installed; the message names the ``pip install`` to run."""
+
+    def __init__(self, module: str, extra: str, what: str) -> None:
+        super().__init__(f"{what} needs the Python package {module!r}: pip install 'dsnet-pipeline[{extra}]'")

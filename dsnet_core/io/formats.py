@@ -113,11 +113,73 @@ def _open_semantickitti(root: Path, **options: Any) -> LogReader:
     return SemanticKittiReader(root, **options)
 
 
+def _is_nuscenes(path: Path) -> bool:
+    from dsnet_core.io.nuscenes_reader import find_versions
+
+    return bool(find_versions(path))
+
+
+def _open_nuscenes(root: Path, **options: Any) -> LogReader:
+    from dsnet_core.io.nuscenes_reader import NuScenesReader
+
+    return NuScenesReader(root, **options)
+
+
+def _is_rosbag(path: Path) -> bool:
+    from dsnet_core.io.rosbag import is_bag
+
+    return is_bag(path) or (path.is_dir() and any(is_bag(p) for p in path.iterdir()))
+
+
+def _open_rosbag(root: Path, **options: Any) -> LogReader:
+    from dsnet_core.io.rosbag import RosbagReader
+
+    return RosbagReader(root, **options)
+
+
+def _is_folder(path: Path) -> bool:
+    from dsnet_core.io.folder import scan_files
+
+    return bool(scan_files(path)) or (
+        path.is_dir() and any(scan_files(p) for p in path.iterdir() if p.is_dir())
+    )
+
+
+def _open_folder(root: Path, **options: Any) -> LogReader:
+    from dsnet_core.io.folder import FolderReader
+
+    return FolderReader(root, **options)
+
+
 register(
     LogFormat(
         "semantickitti",
         _is_semantickitti,
         _open_semantickitti,
         "sequences/SS/velodyne/*.bin with optional labels/, poses.txt, calib.txt, times.txt",
+    )
+)
+register(
+    LogFormat(
+        "nuscenes",
+        _is_nuscenes,
+        _open_nuscenes,
+        "v1.0-*/ JSON tables with samples/ and sweeps/ LIDAR_TOP .pcd.bin, optional panoptic/ and lidarseg/",
+    )
+)
+register(
+    LogFormat(
+        "rosbag",
+        _is_rosbag,
+        _open_rosbag,
+        "a ROS 2 bag (folder with metadata.yaml, or .mcap/.db3) or a folder of bags, PointCloud2 + /tf",
+    )
+)
+register(
+    LogFormat(
+        "folder",
+        _is_folder,
+        _open_folder,
+        "a folder (or folders) of .bin/.npy/.npz/.pcd/.ply/.las/.laz scans, optional poses.txt/times.txt",
     )
 )

@@ -1,5 +1,10 @@
-"""The reader protocol: every log format (SemanticKITTI, nuScenes, folders of scans, the
-synthetic generator's output) is read through this small interface."""
+"""The reader protocol: every log format (SemanticKITTI, nuScenes, folders of scans, ROS 2 bags,
+the synthetic generator's output) is read through this small interface.
+
+Every reader returns scans in the model's convention (float32 x, y, z in metres and 0–1
+remission, through :func:`dsnet_core.io.intensity.normalise_intensity`) and states the source's
+intensity convention per sequence (``intensity_convention``).
+"""
 
 from __future__ import annotations
 
@@ -18,9 +23,10 @@ class FrameRef:
 
     Attributes:
         sequence: sequence name (``"08"``).
-        frame_id: frame name, the file stem (``"000042"``); frames are paired by it.
-        index: position of the frame in its sequence (0-based, sorted by ``frame_id``).
-        scan_path: the scan file.
+        frame_id: frame name: the file stem (``"000042"``), a nuScenes sample_data token, a bag
+            message's header stamp in ns; exports name their files by it.
+        index: position of the frame in its sequence (0-based, in the log's order).
+        scan_path: the scan file (for a bag: the bag).
         label_path: the label file, or None when the log has no labels for it.
     """
 
@@ -51,11 +57,15 @@ class LogReader(Protocol):
         ...
 
     def frames(self, sequence: str) -> list[FrameRef]:
-        """The frames of a sequence, sorted by name."""
+        """The frames of a sequence in the log's order (name, or time where the format says)."""
         ...
 
     def scan(self, frame: FrameRef) -> np.ndarray:
-        """float32 ``(N, 4)``: x, y, z (metres, sensor frame), remission."""
+        """float32 ``(N, 4)``: x, y, z (metres, sensor frame), remission in [0, 1]."""
+        ...
+
+    def intensity_convention(self, sequence: str) -> str:
+        """The source's intensity convention (:data:`dsnet_core.io.intensity.CONVENTIONS`)."""
         ...
 
     def labels(self, frame: FrameRef) -> np.ndarray | None:

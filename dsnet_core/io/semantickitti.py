@@ -61,6 +61,10 @@ class SemanticKittiReader:
     def scan(self, frame: FrameRef) -> np.ndarray:
         return kitti.read_scan(self._inside(frame.scan_path))
 
+    def intensity_convention(self, sequence: str) -> str:
+        """SemanticKITTI remission is already the model's 0–1 convention."""
+        return "unit"
+
     def labels(self, frame: FrameRef, n_points: int | None = None) -> np.ndarray | None:
         if frame.label_path is None:
             return None

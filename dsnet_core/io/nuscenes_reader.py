@@ -1,0 +1,251 @@
+"""Reader for nuScenes logs (format ``nuscenes``), parsing the ``v1.0-*`` JSON tables directly::
+
+ROOT/v1.0-*/{scene,sample,sample_data,ego_pose,calibrated_sensor,sensor,category}.json
+ROOT/v1.0-*/{panoptic,lidarseg}.json               (optional ground truth indexes)
+ROOT/samples/LIDAR_TOP/*.pcd.bin                   float32 (N, 5): x, y, z, intensity 0–255, ring
+ROOT/sweeps/LIDAR_TOP/*.pcd.bin                    the same, between keyframes
+ROOT/panoptic/v1.0-*/<sd token>_panoptic.npz       uint16 general class * 1000 + instance
+ROOT/lidarseg/v1.0-*/<sd token>_lidarseg.bin       uint8 general class
+
+One sequence per scene (named by ``scene.name``), keyframes only unless ``sweeps=True``, in
+timestamp order; a frame's ``frame_id`` is its LiDAR ``sample_data`` token. The LiDAR pose is
+``ego_pose ∘ calibrated_sensor`` (sensor → ego → global), as nuscenes-devkit composes them;
+timestamps are seconds (the tables store microseconds). Ground truth is read from the panoptic
+file when the log has one for the frame, else from lidarseg (instance 0); labels are
+``general class | instance << 16`` under the bundled ``panoptic-nuscenes`` label map, whose raw
+ids are the general class indexes of ``category.json`` (checked on open).
+
+nuscenes-devkit is not used: it pins numpy < 2 and pulls matplotlib and OpenCV, which would
+downgrade this environment's numpy.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from dsnet_core.errors import LabelFormatError, ScanFormatError, TableFormatError
+from dsnet_core.io.geometry import pose_matrix
+from dsnet_core.io.intensity import normalise_intensity
+from dsnet_core.io.reader import FrameRef
+from dsnet_core.labels import LabelMap, load_label_map
+
+TABLES = ("scene", "sample", "sample_data", "ego_pose", "calibrated_sensor", "sensor", "category")
+
+
+def find_versions(root: Path) -> list[str]:
+    """Names of the ``v1.0-*`` table folders under ``root`` that hold ``sample_data.json``."""
+    if not root.is_dir():
+        return []
+    return sorted(p.name for p in root.glob("v1.0-*") if (p / "sample_data.json").is_file())
+
+
+class NuScenesReader:
+    """Reads a nuScenes log through its JSON tables (format ``nuscenes``).
+
+    Args:
+        root: the folder holding ``v1.0-*/``, ``samples/`` and ``sweeps/``.
+        version: the table folder (``v1.0-mini``); default the only one present.
+        sweeps: also return the sweeps between keyframes (they have no ground truth).
+        channel: the LiDAR sensor channel.
+        label_map: accepted for interface symmetry; must be the ``panoptic-nuscenes`` map.
+
+    Attributes:
+        intensity: the source intensity convention (``uint8``); scans are returned in 0–1.
+    """
+
+    format = "nuscenes"
+    intensity = "uint8"
+    columns = 5
+
+    def __init__(
+        self,
+        root: str | Path,
+        version: str | None = None,
+        sweeps: bool = False,
+        channel: str = "LIDAR_TOP",
+        label_map: LabelMap | None = None,
+    ) -> None:
+        self.root = Path(root).resolve()
+        versions = find_versions(self.root)
+        if version is None:
+            if len(versions) != 1:
+                found = ", ".join(versions) or "none"
+                raise TableFormatError(
+                    self.root, f"expected one v1.0-*/ table folder, found {found}; choose one with version="
+                )
+            version = versions[0]
+        elif version not in versions:
+            raise TableFormatError(self.root / version, f"no such table folder (found {', '.join(versions)})")
+        self.version = version
+        self.sweeps = bool(sweeps)
+        self.channel = channel
+        self.label_map = label_map or load_label_map("panoptic-nuscenes")
+        self._dir = self.root / version
+        self._t = {name: self._load(name, required=True) for name in TABLES}
+        self._gt = {name: self._load(name, required=False) for name in ("panoptic", "lidarseg")}
+        self._check_categories()
+        self._frames = cache(self._list_frames)
+        self._sd = {r["token"]: r for r in self._t["sample_data"]}
+        self._ego = {r["token"]: r for r in self._t["ego_pose"]}
+        self._calib = {r["token"]: r for r in self._t["calibrated_sensor"]}
+        self._label_files = {}
+        for name in ("lidarseg", "panoptic"):  # panoptic wins where both exist
+            for rec in self._gt[name] or []:
+                self._label_files[rec["sample_data_token"]] = (name, rec["filename"])
+
+    # -- protocol ------------------------------------------------------------------------------
+    def sequences(self) -> list[str]:
+        return sorted(s["name"] for s in self._t["scene"] if self._scene_frames(s["token"]))
+
+    def frames(self, sequence: str) -> list[FrameRef]:
+        return list(self._frames(sequence))
+
+    def scan(self, frame: FrameRef) -> np.ndarray:
+        """float32 ``(N, 4)``: x, y, z (metres, LiDAR frame), remission 0–1 (intensity / 255)."""
+        path = self._exists(frame.scan_path, frame.frame_id)
+        raw = path.read_bytes()
+        if len(raw) % (4 * self.columns):
+            raise ScanFormatError(
+                path,
+                f"size {len(raw)} bytes is not a multiple of {4 * self.columns} (float32 × {self.columns})",
+            )
+        pts = np.frombuffer(raw, dtype=np.float32).reshape(-1, self.columns)
+        if not np.isfinite(pts[:, :3]).all():
+            raise ScanFormatError(
+                path, f"{int((~np.isfinite(pts[:, :3])).any(1).sum())} points are NaN or inf"
+            )
+        out = np.empty((pts.shape[0], 4), dtype=np.float32)
+        out[:, :3] = pts[:, :3]
+        out[:, 3] = normalise_intensity(pts[:, 3], self.intensity, path)
+        return out
+
+    def labels(self, frame: FrameRef, n_points: int | None = None) -> np.ndarray | None:
+        """uint32 ``(N,)``: general class | instance << 16, or None for a frame without ground truth."""
+        if frame.label_path is None:
+            return None
+        path = self._exists(frame.label_path, frame.frame_id)
+        if path.name.endswith("_panoptic.npz"):
+            from dsnet_core.metrics.nuscenes import read_panoptic_npz
+
+            pan = read_panoptic_npz(path).astype(np.uint32)
+            general, instance = pan // 1000, pan % 1000
+        else:
+            general = np.fromfile(path, dtype=np.uint8).astype(np.uint32)
+            instance = np.zeros_like(general)
+        if n_points is None:
+            n_points = self._exists(frame.scan_path, frame.frame_id).stat().st_size // (4 * self.columns)
+        if general.shape[0] != n_points:
+            raise LabelFormatError(path, f"has {general.shape[0]} labels but the scan has {n_points} points")
+        unknown = np.setdiff1d(np.unique(general), list(self.label_map.learning_map))
+        if unknown.size:
+            raise LabelFormatError(
+                path, f"general class ids {unknown[:10].tolist()} are not nuScenes classes"
+            )
+        return general | (instance << 16)
+
+    def pose(self, frame: FrameRef) -> np.ndarray | None:
+        """float64 ``(4, 4)``: LiDAR → global, ``ego_pose ∘ calibrated_sensor``."""
+        sd = self._sd[frame.frame_id]
+        ego = self._record(self._ego, sd["ego_pose_token"], "ego_pose", frame.frame_id)
+        cal = self._record(self._calib, sd["calibrated_sensor_token"], "calibrated_sensor", frame.frame_id)
+        return pose_matrix(ego["translation"], ego["rotation"]) @ pose_matrix(
+            cal["translation"], cal["rotation"]
+        )
+
+    def poses(self, sequence: str) -> np.ndarray | None:
+        return np.stack([self.pose(f) for f in self.frames(sequence)])
+
+    def timestamp(self, frame: FrameRef) -> float | None:
+        return self._sd[frame.frame_id]["timestamp"] / 1e6
+
+    def intensity_convention(self, sequence: str) -> str:
+        return self.intensity
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _load(self, name: str, required: bool) -> list[dict] | None:
+        path = self._dir / f"{name}.json"
+        if not path.is_file():
+            if required:
+                raise TableFormatError(path, "table is missing")
+            return None
+        try:
+            table = json.loads(path.read_bytes())
+        except (OSError, ValueError) as exc:
+            raise TableFormatError(path, f"not a readable JSON table: {exc}") from exc
+        if not isinstance(table, list):
+            raise TableFormatError(path, "expected a JSON list of records")
+        return table
+
+    def _check_categories(self) -> None:
+        if not any(self._gt.values()):
+            return
+        path = self._dir / "category.json"
+        for rec in self._t["category"]:
+            if "index" not in rec:
+                raise TableFormatError(
+                    path, f"category {rec.get('name')!r} has no 'index' (not nuScenes-lidarseg)"
+                )
+            want = self.label_map.labels.get(int(rec["index"]))
+            if want != rec["name"]:
+                raise TableFormatError(
+                    path, f"category index {rec['index']} is {rec['name']!r}, the label map says {want!r}"
+                )
+
+    def _scene_frames(self, scene_token: str) -> list[dict]:
+        return self._by_scene().get(scene_token, [])
+
+    @cache  # noqa: B019 - one reader per log, the index lives as long as it
+    def _by_scene(self) -> dict[str, list[dict]]:
+        sensors = {s["token"] for s in self._t["sensor"] if s.get("channel") == self.channel}
+        lidar_cal = {c["token"] for c in self._t["calibrated_sensor"] if c["sensor_token"] in sensors}
+        sample_scene = {s["token"]: s["scene_token"] for s in self._t["sample"]}
+        out: dict[str, list[dict]] = {}
+        for sd in self._t["sample_data"]:
+            if sd["calibrated_sensor_token"] in lidar_cal and (self.sweeps or sd["is_key_frame"]):
+                scene = sample_scene.get(sd["sample_token"])
+                if scene is None:
+                    raise TableFormatError(
+                        self._dir / "sample_data.json",
+                        f"sample_data {sd['token']} names sample {sd['sample_token']}, "
+                        "which sample.json lacks",
+                    )
+                out.setdefault(scene, []).append(sd)
+        for records in out.values():
+            records.sort(key=lambda r: (r["timestamp"], r["token"]))
+        return out
+
+    def _list_frames(self, sequence: str) -> tuple[FrameRef, ...]:
+        scenes = [s for s in self._t["scene"] if s["name"] == sequence]
+        if not scenes:
+            raise TableFormatError(self._dir / "scene.json", f"no scene named {sequence!r}")
+        refs = []
+        for i, sd in enumerate(self._scene_frames(scenes[0]["token"])):
+            label = self._label_files.get(sd["token"])
+            refs.append(
+                FrameRef(
+                    sequence=sequence,
+                    frame_id=sd["token"],
+                    index=i,
+                    scan_path=self.root / sd["filename"],
+                    label_path=None if label is None else self.root / label[1],
+                )
+            )
+        return tuple(refs)
+
+    def _exists(self, path: Path, token: str) -> Path:
+        if not path.is_file():
+            raise TableFormatError(
+                path, f"listed by {self.version}'s tables for sample_data {token} but the file is missing"
+            )
+        return path
+
+    def _record(self, table: dict[str, dict], token: str, name: str, sd_token: str) -> dict:
+        if token not in table:
+            raise TableFormatError(
+                self._dir / f"{name}.json", f"has no record {token} (named by sample_data {sd_token})"
+            )
+        return table[token]

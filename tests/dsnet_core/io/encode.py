@@ -28,16 +28,18 @@ def quantised_log(
     convention: str = "unit",
     xyz_scale: float | None = None,
     decimals: int | None = None,
+    every: int = 1,
 ) -> Path:
     """Copy the first ``frames`` frames of sequence 00 with remission on the convention's quantum
     (``k / scale`` in float32), with ``xyz_scale`` coordinates on that grid (LAS), and with
-    ``decimals`` every value a fixed point of printing with that many decimals (ASCII PCD)."""
+    ``decimals`` every value a fixed point of printing with that many decimals (ASCII PCD); with
+    ``every`` > 1 only every n-th point (text formats parse slowly)."""
     ref = SemanticKittiReader(src)
     refs = ref.frames(SEQ)[:frames]
     seq_dir = dst / "sequences" / SEQ
     scale = FULL_SCALE[convention]
     for f in refs:
-        scan = ref.scan(f).copy()
+        scan, label = ref.scan(f)[::every].copy(), ref.labels(f)[::every]
         if scale is None:
             scan[:, 3] = 0
         elif convention != "unit":
@@ -52,7 +54,7 @@ def quantised_log(
             for _ in range(2):  # printing then parsing converges after one pass; the second checks it
                 text = " ".join(f"{v:.{decimals}f}" for v in scan.reshape(-1).tolist())
                 scan = np.array(text.split(), dtype=np.float64).astype(np.float32).reshape(scan.shape)
-        write_frame(seq_dir, f.frame_id, scan, ref.labels(f))
+        write_frame(seq_dir, f.frame_id, scan, label)
     times = np.array([ref.timestamp(f) for f in refs])
     write_sequence_meta(seq_dir, ref.poses(SEQ)[:frames], kitti_tr(), times)
     return dst
@@ -264,6 +266,7 @@ def write_nuscenes(
         )
         if key:
             key_tokens.append(token)
+        if key and label is not None:
             pan = encoder.encode(label)
             name = f"panoptic/{version}/{token}_panoptic.npz"
             (out / name).parent.mkdir(parents=True, exist_ok=True)
@@ -326,7 +329,8 @@ def write_bag(
     ``<tf> -> base_link`` (dynamic, at each cloud's stamp) with ``base_link -> velodyne`` static.
 
     Args:
-        intensity: ``float32`` (0–1), ``uint16`` (``reflectivity`` field, 0–65535) or None.
+        intensity: ``float32`` (0–1), ``uint16`` (``reflectivity`` field, 0–65535), ``int32``
+            (unsupported) or None.
         organised: clouds of height 2 with padded rows.
         nan_every: every n-th point is a NaN return (added after the scan's points' positions).
         tf: the fixed frame, or None for a bag without /tf.
@@ -381,6 +385,9 @@ def write_bag(
             elif intensity == "uint16":
                 fields.append(pf(name="reflectivity", offset=12, datatype=4, count=1))
                 dt += [("reflectivity", "<u2"), ("pad", "<u2")]
+            elif intensity == "int32":  # a type no convention holds
+                fields.append(pf(name="intensity", offset=12, datatype=5, count=1))
+                dt.append(("intensity", "<i4"))
             else:
                 dt.append(("pad", "<f4"))
             n = len(scan)

@@ -28,3 +28,11 @@ def test_missing_root_and_unknown_name(tmp_path):
         detect_format(tmp_path / "nope")
     with pytest.raises(UnknownLogFormatError, match="unknown format 'velodyne-pcap'"):
         open_log(tmp_path, "velodyne-pcap")
+
+
+def test_every_input_format_is_registered_and_named_in_the_error(tmp_path):
+    assert format_names() == ["semantickitti", "nuscenes", "rosbag", "folder"]
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(UnknownLogFormatError) as err:
+        detect_format(tmp_path)
+    assert all(name in str(err.value) for name in format_names()) and "\n" not in str(err.value)

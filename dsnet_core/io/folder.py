@@ -112,6 +112,7 @@ class FolderReader:
         self._times = cache(self._load_times)
         self._poses = cache(self._load_poses)
         self._layout = cache(self._sequence_layout)
+        self._counts: dict[Path, int] = {}  # points of the scans read so far (labels are checked against it)
 
     # -- protocol ------------------------------------------------------------------------------
     def sequences(self) -> list[str]:
@@ -131,11 +132,14 @@ class FolderReader:
         out = np.empty((pts.xyz.shape[0], 4), dtype=np.float32)
         out[:, :3] = pts.xyz
         out[:, 3] = normalise_intensity(pts.intensity, convention, frame.scan_path, len(out))
+        self._counts[frame.scan_path] = len(out)
         return out
 
     def labels(self, frame: FrameRef, n_points: int | None = None) -> np.ndarray | None:
         if frame.label_path is None:
             return None
+        if n_points is None:
+            n_points = self._counts.get(frame.scan_path)
         if n_points is None:
             n_points = len(
                 read_points(frame.scan_path, self._layout(frame.sequence)[0], self.intensity_field).xyz

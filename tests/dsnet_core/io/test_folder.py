@@ -190,11 +190,12 @@ def test_unknown_pcd_data(tmp_path, quantised):
     assert str(err.value).startswith(str(path))
 
 
-def test_ply_without_xyz(tmp_path):
+@pytest.mark.parametrize("text", [False, True])
+def test_ply_without_xyz(tmp_path, text):
     from plyfile import PlyData, PlyElement
 
     arr = np.zeros(3, dtype=[("u", "<f4"), ("v", "<f4"), ("intensity", "<f4")])
-    PlyData([PlyElement.describe(arr, "vertex")]).write(str(tmp_path / "a.ply"))
+    PlyData([PlyElement.describe(arr, "vertex")], text=text).write(str(tmp_path / "a.ply"))
     with pytest.raises(PointFileFormatError, match=r"no x/y/z field \(fields: u, v, intensity\)") as err:
         FolderReader(tmp_path).scan(FolderReader(tmp_path).frames(tmp_path.name)[0])
     assert str(err.value).startswith(str(tmp_path / "a.ply"))
@@ -237,3 +238,23 @@ def test_layout_errors(tmp_path):
     reader = FolderReader(tmp_path, suffix="bin", bin_columns=4)
     with pytest.raises(DataFormatError, match="not a multiple of 16"):
         reader.scan(reader.frames(tmp_path.name)[1])
+
+
+def test_ascii_ply_truncated_and_with_faces(tmp_path):
+    from plyfile import PlyData, PlyElement
+
+    arr = np.zeros(4, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")])
+    arr["x"], arr["intensity"] = [1, 2, 3, 4], [0, 10, 20, 255]
+    faces = np.array([([0, 1, 2],)], dtype=[("vertex_indices", "i4", (3,))])
+    PlyData([PlyElement.describe(arr, "vertex"), PlyElement.describe(faces, "face")], text=True).write(
+        str(tmp_path / "a.ply")
+    )
+    reader = FolderReader(tmp_path)
+    assert reader.intensity_convention(tmp_path.name) == "uint8"
+    scan = reader.scan(reader.frames(tmp_path.name)[0])
+    assert scan[:, 0].tolist() == [1, 2, 3, 4]
+    assert scan[:, 3].tolist() == [0, np.float32(10) / np.float32(255), np.float32(20) / np.float32(255), 1]
+    text = (tmp_path / "a.ply").read_text().splitlines()
+    (tmp_path / "a.ply").write_text("\n".join(text[: text.index("end_header") + 3]) + "\n")
+    with pytest.raises(PointFileFormatError, match="header promises 4 × 4: truncated"):
+        FolderReader(tmp_path).scan(FolderReader(tmp_path).frames(tmp_path.name)[0])

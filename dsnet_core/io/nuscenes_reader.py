@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from dsnet_core.errors import LabelFormatError, ScanFormatError, TableFormatError
+from dsnet_core.io.checks import check_points
 from dsnet_core.io.geometry import pose_matrix
 from dsnet_core.io.intensity import normalise_intensity
 from dsnet_core.io.reader import FrameRef
@@ -114,10 +115,7 @@ class NuScenesReader:
                 f"size {len(raw)} bytes is not a multiple of {4 * self.columns} (float32 × {self.columns})",
             )
         pts = np.frombuffer(raw, dtype=np.float32).reshape(-1, self.columns)
-        if not np.isfinite(pts[:, :3]).all():
-            raise ScanFormatError(
-                path, f"{int((~np.isfinite(pts[:, :3])).any(1).sum())} points are NaN or inf"
-            )
+        check_points(path, pts[:, :3])
         out = np.empty((pts.shape[0], 4), dtype=np.float32)
         out[:, :3] = pts[:, :3]
         out[:, 3] = normalise_intensity(pts[:, 3], self.intensity, path)

@@ -4,7 +4,8 @@ A cloud is ``height × width`` points (height 1: unorganised; > 1: organised, ro
 bytes apart), each ``point_step`` bytes holding the named fields at their offsets. x, y, z must
 be FLOAT32 or FLOAT64; the intensity is the field named by the caller, else the first of
 ``intensity`` and ``reflectivity`` present (UINT8, UINT16 or a float; any other datatype is an
-error). Points whose x, y or z is NaN or inf (no return) are dropped and counted.
+error). Points whose x, y or z is NaN or inf (no return) are dropped and counted; finite points
+beyond :data:`dsnet_core.io.checks.MAX_COORD_M` are a corrupt cloud (an error).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from dsnet_core.errors import BagFormatError
+from dsnet_core.io.checks import check_points
 from dsnet_core.io.intensity import check_column
 
 # sensor_msgs/PointField datatypes
@@ -94,4 +96,5 @@ def decode_cloud(msg: Any, where: str | Path, intensity_field: str | None = None
     if dropped:
         xyz = xyz[keep]
         intensity = None if intensity is None else intensity[keep]
+    check_points(where, xyz)
     return Cloud(xyz, intensity, field, dropped)

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from dsnet_core.errors import MissingExtraError, PointFileFormatError
+from dsnet_core.io.checks import check_points
 from dsnet_core.io.intensity import check_column
 from dsnet_core.io.pcd import read_pcd
 
@@ -65,7 +66,8 @@ def read_points(path: Path, columns: int = 4, intensity_field: str | None = None
         intensity_field: the intensity field's name; default the first of :data:`INTENSITY_NAMES`.
 
     Raises:
-        PointFileFormatError: malformed file, no x/y/z, non-finite coordinates.
+        PointFileFormatError: malformed file, no x/y/z.
+        ScanFormatError: NaN/inf or far coordinates (:func:`dsnet_core.io.checks.check_points`).
         IntensityFormatError: an intensity column of an unsupported type.
         MissingExtraError: the format's library is not installed.
     """
@@ -73,9 +75,7 @@ def read_points(path: Path, columns: int = 4, intensity_field: str | None = None
     if suffix not in _DECODERS:
         raise PointFileFormatError(path, f"unknown scan suffix {suffix!r}; known: {', '.join(SUFFIXES)}")
     pts = _DECODERS[suffix](path, columns, intensity_field)
-    if not np.isfinite(pts.xyz).all():
-        bad = int((~np.isfinite(pts.xyz)).any(axis=1).sum())
-        raise PointFileFormatError(path, f"{bad} points have NaN or inf coordinates")
+    check_points(path, pts.xyz)
     if pts.intensity is not None:
         check_column(pts.intensity, path, pts.field or "intensity")
     return pts

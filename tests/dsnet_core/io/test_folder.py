@@ -258,3 +258,13 @@ def test_ascii_ply_truncated_and_with_faces(tmp_path):
     (tmp_path / "a.ply").write_text("\n".join(text[: text.index("end_header") + 3]) + "\n")
     with pytest.raises(PointFileFormatError, match="header promises 4 × 4: truncated"):
         FolderReader(tmp_path).scan(FolderReader(tmp_path).frames(tmp_path.name)[0])
+
+
+@pytest.mark.parametrize(("value", "match"), [(np.nan, "NaN or inf"), (1e30, "beyond 10000 m")])
+def test_corrupt_coordinates_name_the_scan(tmp_path, value, match):
+    pts = np.zeros((3, 4), np.float32)
+    pts[1, 2] = value
+    np.save(tmp_path / "a.npy", pts)
+    with pytest.raises(DataFormatError, match=match) as err:
+        FolderReader(tmp_path).scan(FolderReader(tmp_path).frames(tmp_path.name)[0])
+    assert str(err.value).startswith(str(tmp_path / "a.npy"))

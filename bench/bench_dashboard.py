@@ -25,12 +25,13 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from tasks.score_report import write_report
+
 from dsnet_core.synth import generate_log
 from flows.dashboard import build_dashboard
 from flows.dashboard.data import load_run
 from storage.run import RunStore
 from tasks.score import state_rel
-from tasks.score_report import write_report
 from tests.tasks.oracle_stitch import install, score_runs
 
 

@@ -31,8 +31,8 @@ STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
 
 
 def random_tiny_checkpoint(path: Path) -> Path:
-    from dsnet_core.labels import load_label_map
-    from dsnet_core.model.checkpoint import ModelCard, class_map_of, save_checkpoint
+    from dsnet_core.labels import class_map_of, load_label_map
+    from dsnet_core.model.checkpoint import ModelCard, save_checkpoint
     from dsnet_core.model.network import DSNet
     from dsnet_core.model.presets import get_preset
 

@@ -273,3 +273,52 @@ def load_label_map(name_or_path: str | Path = "semantic-kitti") -> LabelMap:
 def _load_builtin(key: str) -> LabelMap:
     text = resources.files("dsnet_core").joinpath("data", _BUILTIN[key]).read_text()
     return parse_label_map(yaml.safe_load(text), f"dsnet_core/data/{_BUILTIN[key]}")
+
+
+def class_map_of(label_map: LabelMap) -> dict:
+    """The part of a label map a model depends on (stored in, and checked against, a model card):
+    name, class names, thing ids and train → raw ids."""
+    return {
+        "name": label_map.name,
+        "class_names": list(label_map.class_names),
+        "things": list(label_map.things),
+        "learning_map_inv": {str(k): int(v) for k, v in sorted(label_map.learning_map_inv.items())},
+    }
+
+
+def label_map_from_class_map(class_map: dict) -> LabelMap:
+    """The label map of a model card's class map: the bundled map of that name when it matches
+    exactly, else a map built from the class map alone (its raw ids are the ``learning_map_inv``
+    values, each naming its class).
+
+    Raises:
+        ConfigError: the class map lacks a field or its ids do not fit its class names.
+    """
+    try:
+        name = str(class_map["name"])
+        names = tuple(str(n) for n in class_map["class_names"])
+        things = tuple(int(t) for t in class_map["things"])
+        inv = {int(k): int(v) for k, v in class_map["learning_map_inv"].items()}
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ConfigError(f"model card class map is incomplete or malformed: {exc!r}") from exc
+    normal = {
+        "name": name,
+        "class_names": list(names),
+        "things": list(things),
+        "learning_map_inv": {str(k): v for k, v in sorted(inv.items())},
+    }
+    if name in _BUILTIN and class_map_of(_load_builtin(name)) == normal:
+        return _load_builtin(name)
+    if any(not 0 <= t < len(names) for t in [*things, *inv]):
+        raise ConfigError(f"model card class map {name!r}: ids outside its {len(names)} classes")
+    return LabelMap(
+        name=name,
+        labels={raw: names[train] for train, raw in inv.items()},
+        learning_map={raw: train for train, raw in sorted(inv.items(), reverse=True)},
+        learning_map_inv=inv,
+        class_names=names,
+        things=things,
+        stuff=tuple(i for i in range(1, len(names)) if i not in things),
+        min_points=50,
+        source=f"model card class map {name!r}",
+    )

@@ -1,4 +1,4 @@
-"""Export a run store's final labels (stage ``stitch``) in the SemanticKITTI predictions layout.
+"""Export a run store's final labels (its method's labels stage) in the SemanticKITTI predictions layout.
 
 ``OUT/sequences/SS/predictions/NNNNNN.label``: uint32 per point in the scan's own order,
 raw semantic id (``learning_map_inv``) | instance << 16 — what ``dsnet eval --pred OUT`` and
@@ -16,6 +16,8 @@ import numpy as np
 
 from storage.errors import StoreError
 from storage.run import RunStore
+from tasks.ingest import FRAMES
+from tasks.methods import run_pipeline
 
 
 @dataclass
@@ -33,49 +35,52 @@ class ExportSummary:
     missing: dict[str, list[str]] = field(default_factory=dict)
 
 
-def stitched_frames(
+def final_labels(
     store: RunStore, sequences: list[str] | None = None
 ) -> Iterator[tuple[str, str, np.ndarray | None]]:
-    """Yield ``(sequence, frame_id, label)`` for every frame of every sequence whose ``stitch`` is done.
+    """Yield ``(sequence, frame_id, label)`` for every frame of every sequence whose labels stage (the
+    run's method's: ``stitch`` for DS-Net) is done.
 
     ``label`` is uint32 ``(N,)`` (raw semantic | instance << 16) or None for a frame without a final
     label (quarantined). Sequences are visited in sorted order, frames in ingest order.
 
     Raises:
-        StoreError: a requested sequence has no finished ``stitch``, or none has.
+        StoreError: a requested sequence has no finished labels stage, or none has.
     """
+    pipeline = run_pipeline(store.read_run_config())
+    stage = pipeline[pipeline.labels]
     found = False
     for seq in sorted(sequences if sequences is not None else store.sequences()):
-        m = store.read_manifest(seq, "stitch")
+        m = store.read_manifest(seq, stage.name)
         if m is None or m.status != "done":
             if sequences is not None:
-                raise StoreError(store.root.url(store.stage_rel(seq, "stitch")), "stage 'stitch' is not done")
+                raise StoreError(store.where(seq, stage.name), f"stage {stage.name!r} is not done")
             continue
         found = True
-        ids = store.read_table(seq, "ingest", "frames")["frame_id"].to_pylist()
-        arrays = store.arrays(seq, "stitch")
+        ids = store.read_table(seq, FRAMES)["frame_id"].to_pylist()
+        arrays = store.arrays(seq, stage.contract)
         done = arrays.done()
         for index, frame_id in enumerate(ids):
             yield seq, frame_id, arrays.read_item(index, ["label"])["label"] if done[index] else None
     if not found:
-        raise StoreError(store.uri, "no sequence has a finished 'stitch' stage to export")
+        raise StoreError(store.uri, f"no sequence has a finished {stage.name!r} stage to export")
 
 
 def export_semantickitti(
     root: str, out: str | Path, sequences: list[str] | None = None, storage_options: dict | None = None
 ) -> ExportSummary:
-    """Write ``out/sequences/SS/predictions/*.label`` for every sequence whose ``stitch`` is done.
+    """Write ``out/sequences/SS/predictions/*.label`` for every sequence whose labels stage is done.
 
     Raises:
         StoreError: a requested sequence (or, with none requested, every sequence) has no
-            finished ``stitch`` stage.
+            finished labels stage.
     """
     from dsnet_core.io.kitti import write_label
 
     store = RunStore(root, storage_options)
     out = Path(out)
     summary = ExportSummary(out=out)
-    for seq, frame_id, label in stitched_frames(store, sequences):
+    for seq, frame_id, label in final_labels(store, sequences):
         summary.frames.setdefault(seq, 0)
         summary.missing.setdefault(seq, [])
         if label is None:

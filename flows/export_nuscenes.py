@@ -1,4 +1,4 @@
-"""Export a run store's final labels (stage ``stitch``) as Panoptic nuScenes ``.npz`` files.
+"""Export a run store's final labels as Panoptic nuScenes ``.npz`` files.
 
 ``OUT/panoptic/<version>/<token>_panoptic.npz`` (array ``data``, uint16 general class * 1000 +
 instance, the scan's point order), one per frame; a sequence is a scene, and the token is
@@ -12,7 +12,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from flows.export import stitched_frames
+from flows.export import final_labels
 from storage.run import RunStore
 
 
@@ -31,10 +31,10 @@ def export_nuscenes(
     version: str = "v1.0-trainval",
     storage_options: dict | None = None,
 ) -> NuScenesExport:
-    """Write every frame of every sequence whose ``stitch`` stage is done.
+    """Write every frame of every sequence whose labels stage is done.
 
     Raises:
-        StoreError: a requested sequence has no finished ``stitch``, or none has.
+        StoreError: a requested sequence has no finished labels stage, or none has.
         ExportError: a scene needs more than 999 instances of one class.
     """
     from dsnet_core.io.nuscenes_export import SceneEncoder
@@ -44,7 +44,7 @@ def export_nuscenes(
     folder = Path(out) / "panoptic" / version
     result = NuScenesExport(folder)
     encoders: dict[str, SceneEncoder] = {}
-    for seq, frame_id, label in stitched_frames(store, sequences):
+    for seq, frame_id, label in final_labels(store, sequences):
         if seq not in encoders:
             encoders[seq] = SceneEncoder(seq)
         tokens = result.tokens.setdefault(seq, [])

@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from flows.dashboard import build_dashboard
-from storage.run import RunStore
-from tasks.score_report import ScoreReport, write_report
+from flows.report import ScoreReport, write_report
+from storage.run import DASHBOARD, RunStore
+from tasks.pipeline import Pipeline
 
 log = logging.getLogger(__name__)
-DASHBOARD = "dashboard.html"
 
 
 def dataset_key(name: str) -> str:
@@ -32,16 +32,9 @@ def dataset_key(name: str) -> str:
 def write_dashboard(store: RunStore, others: list[str] | None = None) -> str:
     """Build the dashboard of this run (plus ``others`` side by side) into ``ROOT/dashboard.html``."""
     opts = store.storage_options or None
-    if store.root.local:
-        return str(
-            build_dashboard(
-                [store.uri, *(others or [])], Path(store.root.path(DASHBOARD)), storage_options=opts
-            )
-        )
     with tempfile.TemporaryDirectory() as tmp:
         page = build_dashboard([store.uri, *(others or [])], Path(tmp) / DASHBOARD, storage_options=opts)
-        store.root.write_bytes(DASHBOARD, page.read_bytes())
-    return store.root.url(DASHBOARD)
+        return store.write_dashboard(page.read_bytes())
 
 
 def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
@@ -89,14 +82,22 @@ def class_table(report: ScoreReport) -> list[dict[str, Any]]:
     ]
 
 
-def publish(root: str, dataset: str, artifacts: bool = True, storage_options: dict | None = None) -> dict:
+def publish(
+    root: str,
+    dataset: str,
+    artifacts: bool = True,
+    storage_options: dict | None = None,
+    pipeline: Pipeline | None = None,
+) -> dict:
     """Report tables, dashboard and (in a flow run) artifacts for one run store.
+
+    ``pipeline`` is the run's method (default: the one its run config records).
 
     Returns:
         ``{"scored": bool, "dashboard": location or None, "headline": {...}}``.
     """
     store = RunStore(root, storage_options)
-    report = write_report(store)
+    report = write_report(store, pipeline)
     if report is None:
         log.info("nothing scored in %s (no ground truth, or no score stage yet)", store.uri)
         return {"scored": False, "dashboard": None, "headline": {}}

@@ -1,14 +1,15 @@
 """Padded per-item zarr v3 arrays of one (sequence, stage), one chunk per item, ``done`` flag last.
 
 Layout of the group: for each per-point :class:`~storage.contract.ArraySpec` an array
-``(items, max_points, *trailing)`` chunked ``(1, max_points, *trailing)``; ``n_points`` int32
+``(items, max_points, *trailing)`` chunked ``(1, max_points, *trailing)`` (named trailing sizes
+resolved from the plan's ``dims`` at creation, and kept in the group's attributes); ``n_points`` int32
 ``(items,)`` and ``done`` uint8 ``(items,)`` chunked per item. No shards: one writer per chunk,
 which is what keeps concurrent block writers correct (sharded writes by several writers corrupt data).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 import zarr
@@ -54,20 +55,32 @@ class StageArrays:
         n_items: int,
         max_points: int,
         omit: Iterable[str] = (),
+        dims: Mapping[str, int] | None = None,
     ) -> StageArrays:
-        """Create (overwrite) the group with every non-omitted array of the contract."""
+        """Create (overwrite) the group with every non-omitted array of the contract.
+
+        Args:
+            dims: sizes of the named trailing dimensions (``{"classes": 20}``).
+        """
         omit = set(omit)
         bad = {name for name in omit if not contract.array(name).optional}
         if bad:
             raise ContractError(root.url(rel), f"arrays {sorted(bad)} are required by the contract")
+        dims = dict(dims or {})
+        try:
+            trailing = {s.name: s.resolve(dims) for s in contract.arrays if s.name not in omit}
+        except KeyError as exc:
+            raise ContractError(root.url(rel), str(exc.args[0])) from None
         group = zarr.open_group(_zarr_store(root, rel), mode="w", zarr_format=3)
-        group.attrs.update({"stage": contract.stage, "item": contract.item, "max_points": max_points})
+        group.attrs.update(
+            {"stage": contract.stage, "item": contract.item, "max_points": max_points, "dims": dims}
+        )
         zstd = ZstdCodec(level=ZSTD_LEVEL)
         for spec in contract.arrays:
             if spec.name in omit:
                 continue
             lead = (n_items, max(max_points, 1)) if spec.per_point else (n_items,)
-            shape = lead + spec.trailing
+            shape = lead + trailing[spec.name]
             group.create_array(
                 spec.name,
                 shape=shape,
@@ -111,8 +124,8 @@ class StageArrays:
             )
         for name in self.names:
             spec = self.contract.array(name)
-            value = spec.check(values[name], n_points)
             arr = self._arrays[name]
+            value = spec.check(values[name], n_points, arr.shape[2:] if spec.per_point else arr.shape[1:])
             if spec.per_point:
                 row = np.zeros(arr.shape[1:], dtype=arr.dtype)
                 row[:n_points] = value

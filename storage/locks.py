@@ -171,9 +171,9 @@ class LockSet:
 
     def check(self, rel: str) -> None:
         """Raise LockLostError unless this run still owns ``rel``."""
-        lock = self.held.get(rel)
-        if rel in self.lost or lock is None or not lock.owned():
+        if rel in self.lost or rel not in self.held:
             raise LockLostError(self.root.url(rel), "this run's lock was taken over by another run")
+        check_owner(self.root, rel, self.owner.run_id, missing_ok=False)
 
     def _ensure_thread(self) -> None:
         if self._thread is None or not self._thread.is_alive():
@@ -192,3 +192,19 @@ class LockSet:
                         self.lost.add(rel)
                 except OSError as exc:  # transient storage error: try again next beat
                     log.warning("heartbeat of %s failed: %s", rel, exc)
+
+
+def check_owner(root: RootFS, rel: str, run_id: str, missing_ok: bool = True) -> None:
+    """Raise LockLostError when the lock ``rel`` is held by a run other than ``run_id``.
+
+    Args:
+        missing_ok: a missing lock file passes (stages run without locks by tests and benchmarks);
+            otherwise it counts as lost.
+    """
+    holder = root.read_json(rel)
+    if holder is None:
+        if missing_ok:
+            return
+        raise LockLostError(root.url(rel), "this run's lock was taken over by another run")
+    if holder.get("run_id") != run_id:
+        raise LockLostError(root.url(rel), f"now held by run {holder.get('run_id')}; not writing")

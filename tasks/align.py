@@ -10,12 +10,26 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
+import pyarrow as pa
 from pydantic import Field, model_validator
 
 from dsnet_core.errors import PoseFormatError
 from dsnet_core.temporal.align import build_volume, plan_windows
+from storage.contract import ArraySpec, TableSpec
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 from tasks.ingest import frame_checksum
+
+VOLUMES = TableSpec(
+    "volumes",
+    pa.schema(
+        [
+            ("index", pa.int32()),
+            ("ref_frame", pa.int32()),  # frame index whose sensor frame the volume is expressed in
+            ("frames", pa.list_(pa.int32())),  # frame indices in the volume, in order
+            ("n_points", pa.int64()),
+        ]
+    ),
+)
 
 
 class AlignConfig(StageConfig):
@@ -40,7 +54,7 @@ class AlignConfig(StageConfig):
 
 def volume_scans(ctx: StageContext) -> int:
     """k, the scans per volume of the sequence's ``align`` stage (from its manifest's config)."""
-    return int(ctx.store.read_manifest(ctx.sequence, "align").config.get("scans", 1))
+    return int(ctx.manifest("align").config.get("scans", 1))
 
 
 class AlignStage(Stage):
@@ -48,6 +62,14 @@ class AlignStage(Stage):
     upstream = ("ingest",)
     version = "1"
     Config = AlignConfig
+    item = "volume"
+    arrays = (
+        ArraySpec("points", "float32", trailing=(4,), doc="x, y, z (m, reference sensor frame), remission"),
+        ArraySpec("source_frame", "int32", doc="frame index (in the sequence) each point came from"),
+        ArraySpec("source_index", "int32", doc="point index in its source scan"),
+        ArraySpec("labels", "uint32", optional=True, doc="raw semantic | instance << 16 (ground truth)"),
+    )
+    tables = (VOLUMES,)
 
     def plan(self, ctx: StageContext) -> Plan:
         table = ctx.frames

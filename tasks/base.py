@@ -1,10 +1,15 @@
 """What a stage declares to plug into the pipeline, and the context its block function gets.
 
-A stage is a class with a ``name``, ``upstream`` stages, a ``version`` (bump it when the output
-changes), a pydantic ``Config``, a contract in :mod:`storage.contract`, and two functions:
-``plan`` (how many items, how big) and ``run_block`` (store -> dsnet_core -> yielded item results).
-The shared runner (:mod:`tasks.runner`) does everything else: fingerprints, skip/resume/clear,
-writing arrays with ``done`` last, block fragments, tables and the manifest.
+A stage is one class: its ``name``, ``upstream`` stages, a ``version`` (bump it when the output
+changes), a pydantic ``Config``, the unit of its arrays (``item``: ``frame`` or ``volume``), the
+arrays and tables it writes (:class:`~storage.contract.ArraySpec`, :class:`~storage.contract.TableSpec`),
+and two functions: ``plan`` (how many items, how big) and ``run_block`` (store -> dsnet_core ->
+yielded item results). A method is a list of stages (:mod:`tasks.pipeline`); the shared runner
+(:mod:`tasks.runner`) does everything else: fingerprints, skip/resume/clear, writing arrays with
+``done`` last, block fragments, tables and the manifest.
+
+Stages never name a dataset: the model's label map comes from the run's model stage (its
+manifest records the checkpoint card's class map), the ground truth's from the log's reader.
 """
 
 from __future__ import annotations
@@ -13,13 +18,24 @@ from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
-from storage.contract import CONTRACTS, StageContract
+from storage.contract import ArraySpec, StageContract, TableSpec
+from storage.errors import StoreError
 from storage.run import RunStore
+
+if TYPE_CHECKING:
+    from dsnet_core.io.reader import LogReader
+    from dsnet_core.labels import LabelMap
+    from storage.arrays import StageArrays
+    from storage.manifest import Manifest
+    from tasks.pipeline import Pipeline
+
+CLASS_MAP = "class_map"
+"""The plan key under which a model stage records its checkpoint's class map for downstream stages."""
 
 
 class StageConfig(BaseModel):
@@ -34,10 +50,10 @@ class RunOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     on_error: str = "fail"  # "fail" | "skip" (quarantine bad frames)
-    block_size: int = 25  # items per task
-    lock_wait_s: float = 0.0  # how long a second run waits for a held lock
-    stale_after_s: float = 60.0  # heartbeat age after which a lock is abandoned
-    heartbeat_s: float = 5.0
+    block_size: int = Field(25, ge=1)  # items per task
+    lock_wait_s: float = Field(0.0, ge=0)  # how long a second run waits for a held lock
+    stale_after_s: float = Field(60.0, gt=0)  # heartbeat age after which a lock is abandoned
+    heartbeat_s: float = Field(5.0, gt=0)
 
 
 @dataclass
@@ -51,6 +67,7 @@ class Plan:
         meta: small JSON-able facts the block function needs (stored in the manifest).
         blocks: the item indices of each block, overriding ``RunOptions.block_size`` (e.g. one
             block per sequence for a stage that is sequential over its items).
+        dims: sizes of the named trailing dimensions of the stage's arrays (``{"classes": 20}``).
     """
 
     n_items: int
@@ -58,6 +75,7 @@ class Plan:
     omit: tuple[str, ...] = ()
     meta: dict[str, Any] = field(default_factory=dict)
     blocks: list[list[int]] | None = None
+    dims: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -71,41 +89,27 @@ class ItemResult:
     counts: dict[str, int] = field(default_factory=dict)
 
 
-@dataclass
-class StageContext:
-    """Everything a stage function may read. Built by the runner, in any process (threads, Dask)."""
-
-    store: RunStore
-    sequence: str
-    config: Any
-    run: dict[str, Any]
-    options: RunOptions
-    plan: dict[str, Any] = field(default_factory=dict)
-
-    @cached_property
-    def reader(self):
-        """The log reader of the run's data source, opened as the run recorded it."""
-        from dsnet_core.io.formats import open_log
-
-        return open_log(self.run["data"], self.run.get("format", "auto"), self.run.get("reader_options"))
-
-    @cached_property
-    def frames(self):
-        """The ingest frame table of this sequence (pyarrow Table)."""
-        return self.store.read_table(self.sequence, "ingest", "frames")
-
-
 class Stage(ABC):
-    """A pipeline stage. Subclasses set the class attributes and implement plan/run_block."""
+    """A pipeline stage. Subclasses set the class attributes and implement plan/run_block.
+
+    ``upstream`` may be set per instance (a stage parametrised by what it reads, e.g. ``score``
+    reads whichever stage holds a method's final labels).
+    """
 
     name: ClassVar[str]
-    upstream: ClassVar[tuple[str, ...]] = ()
+    upstream: tuple[str, ...] = ()
     version: ClassVar[str]
     Config: ClassVar[type[StageConfig]] = StageConfig
+    item: ClassVar[str] = "frame"
+    arrays: ClassVar[tuple[ArraySpec, ...]] = ()
+    tables: ClassVar[tuple[TableSpec, ...]] = ()
 
     @property
     def contract(self) -> StageContract:
-        return CONTRACTS[self.name]
+        return StageContract(self.name, self.item, self.arrays, self.tables)
+
+    def table(self, name: str) -> TableSpec:
+        return self.contract.table(name)
 
     def inputs(self, ctx: StageContext) -> str:
         """Digest of inputs from outside the store (cheap: sizes and times, not content)."""
@@ -118,3 +122,76 @@ class Stage(ABC):
     @abstractmethod
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         """Compute the given items, yielding one result per item (the runner writes them)."""
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(name={self.name!r}, upstream={self.upstream})"
+
+
+@dataclass
+class StageContext:
+    """Everything a stage function may read. Built by the runner, in any process (threads, Dask).
+
+    Attributes:
+        store: the run store.
+        sequence: the sequence being processed.
+        stage: the stage's name.
+        config: its validated config.
+        run: the run config (data, format, stages, options).
+        options: run-level policy.
+        pipeline: the run's stages (to find other stages' declarations).
+        plan: the stage's plan meta (empty while planning).
+    """
+
+    store: RunStore
+    sequence: str
+    stage: str
+    config: Any
+    run: dict[str, Any]
+    options: RunOptions
+    pipeline: Pipeline
+    plan: dict[str, Any] = field(default_factory=dict)
+
+    @cached_property
+    def reader(self) -> LogReader:
+        """The log reader of the run's data source, opened as the run recorded it."""
+        from dsnet_core.io.formats import open_log
+
+        return open_log(self.run["data"], self.run.get("format", "auto"), self.run.get("reader_options"))
+
+    @cached_property
+    def frames(self):
+        """The frame table of this sequence (pyarrow Table), written by the ``ingest`` stage."""
+        return self.table("ingest", "frames")
+
+    def manifest(self, stage: str) -> Manifest:
+        """The manifest of another stage of this sequence. Raises StoreError when it has none."""
+        m = self.store.read_manifest(self.sequence, stage)
+        if m is None:
+            raise StoreError(self.store.where(self.sequence, stage), f"stage {stage!r} has not run")
+        return m
+
+    def arrays(self, stage: str, read_only: bool = True) -> StageArrays:
+        """The zarr arrays of a stage of this sequence, by its declaration in the pipeline."""
+        return self.store.arrays(self.sequence, self.pipeline[stage].contract, read_only)
+
+    def table(self, stage: str, name: str):
+        """One of a stage's tables, this sequence's partition (pyarrow Table)."""
+        return self.store.read_table(self.sequence, self.pipeline[stage].table(name))
+
+    @cached_property
+    def label_map(self) -> LabelMap:
+        """The label map of the model's predictions: the class map the nearest upstream model stage
+        recorded from its checkpoint card (see :data:`CLASS_MAP`).
+
+        Raises:
+            StoreError: no upstream stage recorded a class map.
+        """
+        from dsnet_core.labels import label_map_from_class_map
+
+        for stage in reversed(self.pipeline.upstream_closure(self.stage)):
+            m = self.store.read_manifest(self.sequence, stage)
+            if m is not None and CLASS_MAP in m.plan:
+                return label_map_from_class_map(m.plan[CLASS_MAP])
+        raise StoreError(
+            self.store.where(self.sequence, self.stage), "no upstream model stage recorded a class map"
+        )

@@ -12,8 +12,34 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
+import pyarrow as pa
 
+from storage.contract import ArraySpec, TableSpec
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+
+INSTANCES = TableSpec(
+    "instances",
+    pa.schema(
+        [
+            ("index", pa.int32()),  # volume index
+            ("id", pa.int32()),  # raw (volume-local) instance id, as in fuse's ``inst``
+            ("class_id", pa.int32()),  # winning thing class (train id)
+            ("n_points", pa.int64()),
+            ("agreement", pa.float32()),  # fraction of the instance's points predicted as class_id
+            ("confidence", pa.float32()),  # mean predicted probability of class_id over its points
+            ("centroid", pa.list_(pa.float32(), 3)),  # metres, volume (reference sensor) frame
+            ("box_min", pa.list_(pa.float32(), 3)),  # axis-aligned box, metres
+            ("box_max", pa.list_(pa.float32(), 3)),
+        ]
+    ),
+    roles=(
+        ("id", "id"),
+        ("class_id", "class_id"),
+        ("points", "n_points"),
+        ("item", "index"),
+        ("confidence", "confidence"),
+    ),
+)
 
 
 class FuseConfig(StageConfig):
@@ -25,20 +51,25 @@ class FuseStage(Stage):
     upstream = ("infer", "shift")
     version = "1"
     Config = FuseConfig
+    item = "volume"
+    arrays = (
+        ArraySpec("sem", "uint8", doc="train id after the instances' majority vote"),
+        ArraySpec("inst", "int32", doc="raw (volume-local) instance id, 0 for stuff"),
+    )
+    tables = (INSTANCES,)
 
     def plan(self, ctx: StageContext) -> Plan:
-        infer = ctx.store.read_manifest(ctx.sequence, "infer")
+        infer = ctx.manifest("infer")
         return Plan(n_items=infer.n_items, max_points=int(infer.plan["max_points"]))
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         from dsnet_core.instance.fusion import fuse
-        from dsnet_core.labels import load_label_map
         from tasks.infer import dequantise_probs
 
-        things = load_label_map("semantic-kitti").things
-        align = ctx.store.arrays(ctx.sequence, "align")
-        infer = ctx.store.arrays(ctx.sequence, "infer")
-        shift = ctx.store.arrays(ctx.sequence, "shift")
+        things = ctx.label_map.things
+        align = ctx.arrays("align")
+        infer = ctx.arrays("infer")
+        shift = ctx.arrays("shift")
         for item in items:
             xyz = align.read_item(item, ["points"])["points"][:, :3]
             inf = infer.read_item(item, ["sem", "probs"])

@@ -5,6 +5,10 @@ Per point: ``sem`` (uint8 train id), ``probs`` (softmax probabilities quantised 
 confidences and review queues, not for calibration studies), ``offsets`` (float32 ×3, metres)
 and ``features`` (float16 ×32). A 4D volume goes through the network as one cloud.
 
+The widths of ``probs`` and ``features`` are the model's (its card's class map and instance
+feature size), recorded in the plan; so is the card's class map, which every downstream stage
+reads as the run's label map (:attr:`tasks.base.StageContext.label_map`).
+
 The fingerprint holds the checkpoint's content digest (:func:`checkpoint_digest`: the model
 card with its weights' sha256, and the shifting weights' sha256), so a new model reprocesses
 ``infer`` and everything downstream; the same model under another path also does (the path is
@@ -19,10 +23,9 @@ from collections.abc import Iterator
 import numpy as np
 from pydantic import Field
 
-from dsnet_core.errors import CheckpointMismatchError
-from storage.contract import INS_DIM, N_CLASSES
+from storage.contract import ArraySpec
 from tasks.align import volume_scans
-from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.base import CLASS_MAP, ItemResult, Plan, Stage, StageConfig, StageContext
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +63,18 @@ class InferStage(Stage):
     upstream = ("align",)
     version = "1"
     Config = InferConfig
+    item = "volume"
+    arrays = (
+        ArraySpec("sem", "uint8", doc="predicted train id (argmax over 1..C-1)"),
+        ArraySpec(
+            "probs",
+            "uint8",
+            trailing=("classes",),
+            doc="softmax probabilities quantised to uint8: p = q / 255 (abs error <= 1/510)",
+        ),
+        ArraySpec("offsets", "float32", trailing=(3,), doc="point -> instance centre, metres"),
+        ArraySpec("features", "float16", trailing=("features",), doc="instance features for shifting"),
+    )
 
     @staticmethod
     def checkpoint(ctx: StageContext):
@@ -74,30 +89,33 @@ class InferStage(Stage):
         return "checkpoint:" + checkpoint_digest(self.checkpoint(ctx))
 
     def plan(self, ctx: StageContext) -> Plan:
-        align = ctx.store.read_manifest(ctx.sequence, "align")
+        from dsnet_core.model.checkpoint import read_card
+
+        align = ctx.manifest("align")
+        path = self.checkpoint(ctx).resolve()
+        card = read_card(path)
+        cfg = card.config
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),
-            meta={"checkpoint": str(self.checkpoint(ctx).resolve())},
+            meta={
+                "checkpoint": str(path),
+                "model_card": f"{path.name}@{card.weights_sha256[:12]}",
+                CLASS_MAP: card.class_map,
+            },
+            dims={"classes": cfg.num_classes, "features": cfg.ins_dim},
         )
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
-        from dsnet_core.labels import load_label_map
+        from dsnet_core.labels import label_map_from_class_map
         from dsnet_core.model.inference import Predictor
 
-        path = ctx.plan["checkpoint"]
+        label_map = label_map_from_class_map(ctx.plan[CLASS_MAP])
         predictor = Predictor.from_checkpoint(
-            path, device=ctx.config.device, expect_label_map=load_label_map("semantic-kitti")
+            ctx.plan["checkpoint"], device=ctx.config.device, expect_label_map=label_map
         )
-        cfg = predictor.model.config
-        if cfg.num_classes != N_CLASSES or cfg.ins_dim != INS_DIM:
-            raise CheckpointMismatchError(
-                path,
-                f"the infer contract stores {N_CLASSES} classes and {INS_DIM}-d features; the model has "
-                f"{cfg.num_classes} and {cfg.ins_dim}",
-            )
-        align = ctx.store.arrays(ctx.sequence, "align")
-        thing = load_label_map("semantic-kitti").is_thing()
+        align = ctx.arrays("align")
+        thing = label_map.is_thing()
         clouds = (align.read_item(i, ["points"])["points"] for i in items)
         for item, res in zip(items, predictor.predict_iter(clouds, ctx.config.batch), strict=True):
             n = int(res.sem.shape[0])

@@ -17,10 +17,32 @@ import os
 from collections.abc import Iterator
 
 import numpy as np
+import pyarrow as pa
 
 from dsnet_core.errors import DataFormatError
 from dsnet_core.temporal.odometry import Odometry, OdometryError
+from storage.contract import TableSpec
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+
+FRAMES = TableSpec(
+    "frames",
+    pa.schema(
+        [
+            ("index", pa.int32()),
+            ("frame_id", pa.string()),
+            ("source_path", pa.string()),
+            ("label_path", pa.string()),
+            ("n_points", pa.int64()),
+            ("pose", pa.list_(pa.float64(), 16)),  # LiDAR-frame 4×4 sensor→world, row-major
+            ("pose_source", pa.string()),  # "log" | "estimated" (ingest --estimate-poses) | None
+            ("timestamp", pa.float64()),
+            ("checksum", pa.string()),  # blake2b of scan bytes + label bytes
+            ("has_labels", pa.bool_()),
+            ("status", pa.string()),  # "ok" | "quarantined"
+            ("reason", pa.string()),
+        ]
+    ),
+)
 
 
 def frame_checksum(scan: np.ndarray, labels: np.ndarray | None) -> str:
@@ -68,6 +90,8 @@ class IngestStage(Stage):
     upstream = ()
     version = "2"  # 2: pose_source column, estimated poses
     Config = IngestConfig
+    item = "frame"
+    tables = (FRAMES,)
 
     def inputs(self, ctx: StageContext) -> str:
         """Names, sizes and mtimes of every scan and label file, plus the poses and times values."""

@@ -15,19 +15,21 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from storage.errors import LockLostError, StoreError
+from storage.errors import StoreError
+from storage.locks import check_owner
 from storage.manifest import BlockFragment, Manifest, fingerprint
 from storage.run import RunStore
-from tasks.base import RunOptions, StageContext
-from tasks.registry import STAGES, downstream_of
+from tasks.base import RunOptions, Stage, StageContext
+from tasks.pipeline import Pipeline
 
 
 @dataclass(frozen=True)
 class BlockJob:
-    """One task's work: small and picklable (Dask ships it to a worker)."""
+    """One task's work: small and picklable (Dask ships it to a worker, the pipeline's stages with it)."""
 
     root: str
     storage_options: dict[str, Any]
+    pipeline: Pipeline
     sequence: str
     stage: str
     fingerprint: str
@@ -46,45 +48,61 @@ class Decision:
     jobs: list[BlockJob] = field(default_factory=list)
 
 
-def resolved_config(stage: str, run: dict[str, Any]) -> dict[str, Any]:
+def resolved_config(stage: Stage, run: dict[str, Any]) -> dict[str, Any]:
     """The stage's config from the run config, validated and with defaults filled in."""
-    cfg = STAGES[stage].Config.model_validate(run.get("stages", {}).get(stage, {}))
+    cfg = stage.Config.model_validate(run.get("stages", {}).get(stage.name, {}))
     return cfg.model_dump(mode="json")
 
 
 def make_context(
-    store: RunStore, sequence: str, stage: str, run: dict, plan: dict | None = None
+    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: dict, plan: dict | None = None
 ) -> StageContext:
-    spec = STAGES[stage]
+    spec = pipeline[stage]
     return StageContext(
         store=store,
         sequence=sequence,
-        config=spec.Config.model_validate(resolved_config(stage, run)),
+        stage=stage,
+        config=spec.Config.model_validate(resolved_config(spec, run)),
         run=run,
         options=RunOptions.model_validate(run.get("options", {})),
+        pipeline=pipeline,
         plan=plan or {},
     )
 
 
-def upstream_fingerprints(store: RunStore, sequence: str, stage: str) -> dict[str, str]:
+def upstream_fingerprints(store: RunStore, pipeline: Pipeline, sequence: str, stage: str) -> dict[str, str]:
     """Fingerprints of the finished upstream stages. Raises StoreError if one is not done."""
     out = {}
-    for up in STAGES[stage].upstream:
+    for up in pipeline[stage].upstream:
         m = store.read_manifest(sequence, up)
         if m is None or m.status != "done":
-            raise StoreError(store.root.url(store.stage_rel(sequence, up)), f"stage {up!r} is not done")
+            raise StoreError(store.where(sequence, up), f"stage {up!r} is not done")
         out[up] = m.fingerprint
     return out
 
 
+def stage_fingerprint(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: dict) -> str:
+    """What a stage's fingerprint would be now (its upstream stages must be done)."""
+    spec = pipeline[stage]
+    ctx = make_context(store, pipeline, sequence, stage, run)
+    upstream = upstream_fingerprints(store, pipeline, sequence, stage)
+    return fingerprint(stage, spec.version, resolved_config(spec, run), upstream, spec.inputs(ctx))
+
+
 def prepare_stage(
-    store: RunStore, sequence: str, stage: str, run: dict, run_id: str, force: bool = False
+    store: RunStore,
+    pipeline: Pipeline,
+    sequence: str,
+    stage: str,
+    run: dict,
+    run_id: str,
+    force: bool = False,
 ) -> Decision:
     """Decide skip / resume / fresh; on fresh, clear the stage and its downstream and plan it."""
-    spec = STAGES[stage]
-    ctx = make_context(store, sequence, stage, run)
-    config = resolved_config(stage, run)
-    upstream = upstream_fingerprints(store, sequence, stage)
+    spec = pipeline[stage]
+    ctx = make_context(store, pipeline, sequence, stage, run)
+    config = resolved_config(spec, run)
+    upstream = upstream_fingerprints(store, pipeline, sequence, stage)
     inputs = spec.inputs(ctx)
     fp = fingerprint(stage, spec.version, config, upstream, inputs)
     old = store.read_manifest(sequence, stage)
@@ -93,18 +111,18 @@ def prepare_stage(
             return Decision("skip", fp, old)
         done = store.completed_blocks(sequence, stage, fp)
         jobs = [
-            _job(store, sequence, stage, fp, run_id, b, items)
+            _job(store, pipeline, sequence, stage, fp, run_id, b, items)
             for b, items in enumerate(old.blocks)
             if b not in done
         ]
         old.status, old.run_id, old.error = "running", run_id, None
         store.write_manifest(old)
         return Decision("resume", fp, old, jobs)
-    for name in [stage, *downstream_of(stage)]:
-        store.clear_stage(sequence, name)
+    for name in [stage, *pipeline.downstream_of(stage)]:
+        store.clear_stage(sequence, pipeline[name].contract)
     plan = spec.plan(ctx)
-    if spec.contract.arrays:
-        store.create_arrays(sequence, stage, plan.n_items, plan.max_points, plan.omit)
+    if spec.arrays:
+        store.create_arrays(sequence, spec.contract, plan.n_items, plan.max_points, plan.omit, plan.dims)
     size = max(1, RunOptions.model_validate(run.get("options", {})).block_size)
     blocks = [list(range(i, min(i + size, plan.n_items))) for i in range(0, plan.n_items, size)]
     if plan.blocks is not None:
@@ -121,16 +139,16 @@ def prepare_stage(
         run_id=run_id,
         n_items=plan.n_items,
         blocks=blocks,
-        plan={"max_points": plan.max_points, "omit": list(plan.omit), **plan.meta},
+        plan={"max_points": plan.max_points, "omit": list(plan.omit), "dims": plan.dims, **plan.meta},
         started=time.time(),
     )
     store.write_manifest(manifest)
-    jobs = [_job(store, sequence, stage, fp, run_id, b, items) for b, items in enumerate(blocks)]
+    jobs = [_job(store, pipeline, sequence, stage, fp, run_id, b, items) for b, items in enumerate(blocks)]
     return Decision("fresh", fp, manifest, jobs)
 
 
-def _job(store: RunStore, sequence: str, stage: str, fp: str, run_id: str, b: int, items) -> BlockJob:
-    return BlockJob(store.uri, store.storage_options, sequence, stage, fp, run_id, b, tuple(items))
+def _job(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, fp: str, run_id: str, b: int, items):
+    return BlockJob(store.uri, store.storage_options, pipeline, sequence, stage, fp, run_id, b, tuple(items))
 
 
 def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
@@ -139,13 +157,11 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
     store = store or RunStore(job.root, job.storage_options)
     manifest = store.read_manifest(job.sequence, job.stage)
     if manifest is None or manifest.fingerprint != job.fingerprint:
-        raise StoreError(
-            store.root.url(store.stage_rel(job.sequence, job.stage)), "stage changed under this block"
-        )
+        raise StoreError(store.where(job.sequence, job.stage), "stage changed under this block")
     run = store.read_run_config(job.run_id)
-    ctx = make_context(store, job.sequence, job.stage, run, manifest.plan)
-    spec = STAGES[job.stage]
-    arrays = store.arrays(job.sequence, job.stage, read_only=False) if spec.contract.arrays else None
+    ctx = make_context(store, job.pipeline, job.sequence, job.stage, run, manifest.plan)
+    spec = job.pipeline[job.stage]
+    arrays = store.arrays(job.sequence, spec.contract, read_only=False) if spec.arrays else None
     rows: dict[str, list[dict]] = {}
     counts: dict[str, int] = {}
 
@@ -171,7 +187,7 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
             store.write_item_record(job.sequence, job.stage, res.index, record)  # before the done flag
             arrays.write_item(res.index, res.arrays, res.n_points)
         add(res.rows, res.counts)
-    _check_lock(store, job)
+    check_owner(store.root, store.lock_rel(job.sequence, job.stage), job.run_id)
     frag = BlockFragment(
         fingerprint=job.fingerprint,
         block=job.block,
@@ -191,27 +207,20 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
     }
 
 
-def _check_lock(store: RunStore, job: BlockJob) -> None:
-    rel = f"{store.stage_rel(job.sequence, job.stage)}/lock.json"
-    holder = store.root.read_json(rel)
-    if holder is not None and holder.get("run_id") != job.run_id:
-        raise LockLostError(store.root.url(rel), f"now held by run {holder.get('run_id')}; not writing block")
-
-
-def finalize_stage(store: RunStore, sequence: str, stage: str, fp: str) -> Manifest:
+def finalize_stage(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, fp: str) -> Manifest:
     """Gather the block fragments into the tables and write the manifest as done (last)."""
     manifest = store.read_manifest(sequence, stage)
     if manifest is None or manifest.fingerprint != fp:
-        raise StoreError(store.root.url(store.stage_rel(sequence, stage)), "manifest changed before finalise")
+        raise StoreError(store.where(sequence, stage), "manifest changed before finalise")
     frags = store.fragments(sequence, stage, fp)
     missing = sorted(set(range(len(manifest.blocks))) - set(frags))
     if missing:
-        raise StoreError(store.root.url(store.stage_rel(sequence, stage)), f"blocks {missing} are not done")
+        raise StoreError(store.where(sequence, stage), f"blocks {missing} are not done")
     ordered = [frags[b] for b in sorted(frags)]
-    for spec in STAGES[stage].contract.tables:
+    for spec in pipeline[stage].tables:
         rows = [r for f in ordered for r in f.rows.get(spec.name, [])]
         rows.sort(key=lambda r: r.get("index", 0))
-        store.write_table(sequence, stage, spec.name, rows)
+        store.write_table(sequence, spec, rows)
     counts: dict[str, int] = {}
     for f in ordered:
         for key, n in f.counts.items():
@@ -236,19 +245,25 @@ def mark_failed(store: RunStore, sequence: str, stage: str, fp: str, error: str)
 
 
 def run_stage_plain(
-    store: RunStore, sequence: str, stage: str, run: dict, run_id: str, force: bool = False
+    store: RunStore,
+    pipeline: Pipeline,
+    sequence: str,
+    stage: str,
+    run: dict,
+    run_id: str,
+    force: bool = False,
 ) -> Manifest:
     """Prepare, run every block in a loop, finalise (no Prefect, no locks): tests and benchmarks."""
-    decision = prepare_stage(store, sequence, stage, run, run_id, force)
+    decision = prepare_stage(store, pipeline, sequence, stage, run, run_id, force)
     if decision.action == "skip":
         return decision.manifest
     for job in decision.jobs:
         run_block(job, store)
-    return finalize_stage(store, sequence, stage, decision.fingerprint)
+    return finalize_stage(store, pipeline, sequence, stage, decision.fingerprint)
 
 
 def stage_state(
-    store: RunStore, sequence: str, stage: str, run: dict | None = None
+    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: dict | None = None
 ) -> tuple[str, Manifest | None, int]:
     """(state, manifest, finished blocks) for ``dsnet status``, from the store alone.
 
@@ -264,6 +279,6 @@ def stage_state(
         um = store.read_manifest(sequence, up)
         if um is None or um.fingerprint != fp:
             return "stale", m, len(m.blocks)
-    if run is not None and resolved_config(stage, run) != m.config:
+    if run is not None and resolved_config(pipeline[stage], run) != m.config:
         return "stale", m, len(m.blocks)
     return "done", m, len(m.blocks)

@@ -1,34 +1,53 @@
-"""Stage ``score``: the stitched per-frame labels against the ground truth (PQ family, mIoU, LSTQ).
+"""Stage ``score``: a method's final per-frame labels against the ground truth (PQ family, mIoU, LSTQ).
 
 One item per frame that has ground truth and was not quarantined. A block scores its frames with
 one :class:`~dsnet_core.metrics.PanopticEvaluator`, yields one ``frame_metrics`` row per frame and
-leaves the evaluator's accumulator state in ``blocks/acc-<first item>.npz`` (before the runner
-writes the block's fragment, so a finished block always has its state). Sequence- and
-dataset-level numbers come from merging those states (:mod:`tasks.score_report`), never from
-averaging per-frame numbers.
+leaves the evaluator's accumulator state in the block's bytes ``acc-<first item>.npz`` (written
+before the runner writes the block's fragment, so a finished block always has its state).
+Sequence- and dataset-level numbers come from merging those states (:mod:`flows.report`), never
+from averaging per-frame numbers.
 
-The stitch stage's items are frames, indexed like ingest's frame table; its ``label`` array holds
-``sem | inst << 16`` in the scan's original point order.
+The stage reads whichever stage holds the method's final labels (``labels``: ``stitch`` for
+DS-Net), whose ``label`` array holds ``raw semantic | instance << 16`` per frame in the scan's
+original point order. The ground truth's label map is the log reader's; predictions are in the
+model's label map, and the two must be the same map.
 """
 
 from __future__ import annotations
 
-import posixpath
 from collections.abc import Iterator
 from typing import Literal
 
 import numpy as np
+import pyarrow as pa
 from pydantic import Field
 
-from dsnet_core.labels import load_label_map
+from dsnet_core.errors import ConfigError
+from dsnet_core.labels import LabelMap
 from dsnet_core.metrics import PanopticEvaluator
 from dsnet_core.metrics.state import evaluator_state, state_to_bytes
+from storage.contract import TableSpec
 from storage.errors import StoreError
-from storage.run import RunStore
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
-PRED_STAGE = "stitch"
-PRED_ARRAY = "label"
+FRAME_METRICS = TableSpec(
+    "frame_metrics",
+    pa.schema(
+        [
+            ("index", pa.int32()),  # frame index in the sequence (ingest's)
+            ("frame_id", pa.string()),
+            ("n_points", pa.int64()),  # points of the scan
+            ("n_valid", pa.int64()),  # points whose ground truth is not ignored
+            ("pq", pa.float64()),  # mean over the classes seen in this frame (NaN: none)
+            ("sq", pa.float64()),
+            ("rq", pa.float64()),
+            ("miou", pa.float64()),  # mean over classes with a non-zero union in this frame
+            ("tp", pa.int64()),  # matched segments, all classes
+            ("fp", pa.int64()),
+            ("fn", pa.int64()),
+        ]
+    ),
+)
 
 
 class ScoreConfig(StageConfig):
@@ -36,39 +55,51 @@ class ScoreConfig(StageConfig):
 
     Attributes:
         mode: ``official`` (benchmark-exact, quirks included) or ``corrected``.
-        min_points: minimum segment size (default: the label map's, 50 for SemanticKITTI).
-        label_map: bundled label map name.
+        min_points: minimum segment size (default: the ground truth's label map's).
     """
 
     mode: Literal["official", "corrected"] = "official"
     min_points: int | None = Field(None, ge=0)
-    label_map: str = "semantic-kitti"
 
 
-def make_evaluator(config: ScoreConfig) -> PanopticEvaluator:
-    return PanopticEvaluator(
-        load_label_map(config.label_map), min_points=config.min_points, mode=config.mode, keep_rows=False
-    )
+def make_evaluator(config: ScoreConfig, label_map: LabelMap) -> PanopticEvaluator:
+    return PanopticEvaluator(label_map, min_points=config.min_points, mode=config.mode, keep_rows=False)
 
 
-def state_rel(store: RunStore, sequence: str, first_item: int) -> str:
-    """Where the block starting at ``first_item`` keeps its accumulator state."""
-    return posixpath.join(store.stage_rel(sequence, "score"), "blocks", f"acc-{first_item:06d}.npz")
+def block_state_name(first_item: int) -> str:
+    """The name of the accumulator state of the block starting at ``first_item``."""
+    return f"acc-{first_item:06d}.npz"
 
 
 class ScoreStage(Stage):
+    """Scores the per-frame ``label`` array of the stage named ``labels``."""
+
     name = "score"
-    upstream = (PRED_STAGE,)
     version = "1"
     Config = ScoreConfig
+    item = "frame"
+    tables = (FRAME_METRICS,)
+
+    def __init__(self, labels: str) -> None:
+        self.upstream = (labels,)
+
+    @property
+    def labels(self) -> str:
+        return self.upstream[0]
+
+    def inputs(self, ctx: StageContext) -> str:
+        """The ground truth's label map (the reader's) decides the scores as much as the config."""
+        gt = ctx.reader.label_map
+        return "" if gt is None else f"gt-labels:{gt.name}:{gt.source}"
 
     def plan(self, ctx: StageContext) -> Plan:
         table = ctx.frames.to_pydict()
         n_frames = len(table["index"])
-        arrays = ctx.store.arrays(ctx.sequence, PRED_STAGE)
+        arrays = ctx.arrays(self.labels)
         if arrays.n_items != n_frames:
             raise StoreError(
-                arrays.where, f"stitch has {arrays.n_items} frames but ingest has {n_frames}; rerun stitch"
+                arrays.where,
+                f"{self.labels} has {arrays.n_items} frames but ingest has {n_frames}; rerun {self.labels}",
             )
         done = arrays.done()
         scored = [
@@ -76,25 +107,45 @@ class ScoreStage(Stage):
             for i, ok, gt in zip(table["index"], table["status"], table["has_labels"], strict=True)
             if ok == "ok" and gt and done[int(i)]
         ]
+        if scored:
+            self.label_map(ctx)  # a model/ground-truth map mismatch fails here, before any block
         ids = dict(zip(table["index"], table["frame_id"], strict=True))
         frame_ids = [ids[i] for i in scored]
         return Plan(n_items=len(scored), meta={"frames": scored, "frame_ids": frame_ids})
 
+    @staticmethod
+    def label_map(ctx: StageContext) -> LabelMap:
+        """The ground truth's label map, checked against the model's (the predictions' raw ids).
+
+        Raises:
+            ConfigError: the log has no label map, or the model predicts in another one.
+        """
+        gt = ctx.reader.label_map
+        if gt is None:
+            raise ConfigError(f"{ctx.run['data']}: the log's format has no label map to score against")
+        model = ctx.label_map
+        if model.name != gt.name or model.learning_map_inv != gt.learning_map_inv:
+            raise ConfigError(
+                f"{ctx.run['data']}: ground truth is in the {gt.name!r} label map but the model predicts "
+                f"{model.name!r} classes; score with a model of the same label map"
+            )
+        return gt
+
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         reader = ctx.reader
         refs = reader.frames(ctx.sequence)
-        arrays = ctx.store.arrays(ctx.sequence, PRED_STAGE)
-        ev = make_evaluator(ctx.config)
+        arrays = ctx.arrays(self.labels)
+        ev = make_evaluator(ctx.config, self.label_map(ctx))
         for item in items:
             index = ctx.plan["frames"][item]
             frame_id = ctx.plan["frame_ids"][item]
-            pred = arrays.read_item(index, [PRED_ARRAY])[PRED_ARRAY]
+            pred = arrays.read_item(index, ["label"])["label"]
             gt = reader.labels(refs[index])
             if gt.shape != pred.shape:
                 raise StoreError(
                     arrays.where,
-                    f"frame {frame_id}: stitch label has {pred.shape[0]} points, {refs[index].label_path} "
-                    f"has {gt.shape[0]}",
+                    f"frame {frame_id}: {self.labels} label has {pred.shape[0]} points, "
+                    f"{refs[index].label_path} has {gt.shape[0]}",
                 )
             row = ev.add(gt, np.asarray(pred, dtype=np.uint32), frame=frame_id, sequence=ctx.sequence)
             yield ItemResult(
@@ -103,8 +154,8 @@ class ScoreStage(Stage):
                 counts={"frames": 1, "points": row.n_points},
             )
         if items:
-            rel = state_rel(ctx.store, ctx.sequence, items[0])
-            ctx.store.root.write_bytes(rel, state_to_bytes(evaluator_state(ev)))
+            data = state_to_bytes(evaluator_state(ev))
+            ctx.store.write_block_bytes(ctx.sequence, self.name, block_state_name(items[0]), data)
 
 
 def frame_row(index: int, row) -> dict:

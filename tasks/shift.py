@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import Field
 
 from dsnet_core.instance.clustering_config import ClustererConfig, DynamicShiftConfig
+from storage.contract import ArraySpec
 from tasks.align import volume_scans
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
@@ -76,9 +77,20 @@ class ShiftStage(Stage):
     upstream = ("infer",)
     version = "1"
     Config = ShiftConfig
+    item = "volume"
+    arrays = (
+        ArraySpec("instance", "int32", doc="raw instance id 1..K on thing points, 0 elsewhere"),
+        ArraySpec(
+            "seed_position",
+            "float32",
+            trailing=(3,),
+            optional=True,
+            doc="converged position (metres) at the points chosen as shifting seeds, NaN elsewhere",
+        ),
+    )
 
     def plan(self, ctx: StageContext) -> Plan:
-        infer = ctx.store.read_manifest(ctx.sequence, "infer")
+        infer = ctx.manifest("infer")
         cfg = effective_clusterer(ctx.config, volume_scans(ctx))
         dynamic = isinstance(cfg, DynamicShiftConfig)
         return Plan(
@@ -97,7 +109,6 @@ class ShiftStage(Stage):
 
         from dsnet_core.instance.clustering import get_clusterer
         from dsnet_core.instance.shifting import DynamicShift
-        from dsnet_core.labels import load_label_map
         from dsnet_core.model.bundle import load_shift_weights
 
         cfg = TypeAdapter(ClustererConfig).validate_python(ctx.plan["clusterer"])
@@ -116,9 +127,9 @@ class ShiftStage(Stage):
                 )
                 fixed = 1
         clusterer = get_clusterer(cfg, weights)
-        thing_lut = load_label_map("semantic-kitti").is_thing()
-        align = ctx.store.arrays(ctx.sequence, "align")
-        infer = ctx.store.arrays(ctx.sequence, "infer")
+        thing_lut = ctx.label_map.is_thing()
+        align = ctx.arrays("align")
+        infer = ctx.arrays("infer")
         for item in items:
             xyz = align.read_item(item, ["points"])["points"][:, :3]
             inf = infer.read_item(item, ["sem", "offsets", "features"])

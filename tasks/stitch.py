@@ -1,4 +1,4 @@
-"""Stage ``stitch``: sequence-wide instance ids and each frame's final SemanticKITTI label.
+"""Stage ``stitch``: sequence-wide instance ids and each frame's final label.
 
 Reads ``fuse`` (per volume: train ids, raw instance ids, instance confidences) and ``align``
 (each point's source frame and source index) and streams the volumes of a sequence through
@@ -13,28 +13,31 @@ written once and never changes.
 
 Output per frame (item = frame, the ingest frame table's ``index``): ``label`` uint32 in the
 ORIGINAL point order of the frame's scan (points put back through align's ``source_frame`` /
-``source_index``), ``learning_map_inv[train id] | id << 16``; quarantined frames get no label
-(``done`` stays 0). Table ``tracks``: one row per id (class, first/last frame, points per
-frame, confidence = point-weighted mean of fuse's instance confidence, lowest linking IoU).
+``source_index``), ``learning_map_inv[train id] | id << 16`` in the model's label map;
+quarantined frames get no label (``done`` stays 0). Table ``tracks``: one row per id (class,
+first/last frame, points per frame, confidence = point-weighted mean of fuse's instance
+confidence, lowest linking IoU).
 
 Stitching is sequential, so a sequence is one block. It is resumable inside the block: after
-each volume's frames are written, the stitcher's state goes to ``stitch/state.json`` (tagged with
-the stage's fingerprint and the volume); a rerun of the block continues after the last saved
-volume whose owned frames are all ``done`` (without a valid state it restarts from the first
-volume) and yields only the frames the runner asks for (those not ``done``; the runner keeps the
-finished frames' counts and rows). The track table rides on the last frame. A killed stitch
-therefore resumes to identical labels and tables.
+each volume's frames are written, the stitcher's state is saved as the stage's state
+(:meth:`storage.run.RunStore.write_stage_state`, tagged with the stage's fingerprint and the
+volume); a rerun of the block continues after the last saved volume whose owned frames are all
+``done`` (without a valid state it restarts from the first volume) and yields only the frames
+the runner asks for (those not ``done``; the runner keeps the finished frames' counts and
+rows). The track table rides on the last frame. A killed stitch therefore resumes to identical
+labels and tables.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import posixpath
 from collections.abc import Iterator
 
 import numpy as np
+import pyarrow as pa
 
+from storage.contract import ArraySpec, TableSpec
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
 log = logging.getLogger(__name__)
@@ -50,8 +53,38 @@ class StitchConfig(StageConfig):
     min_iou: float = 0.5
 
 
-def _state_rel(ctx: StageContext) -> str:
-    return posixpath.join(ctx.store.stage_rel(ctx.sequence, "stitch"), "state.json")
+TRACKS = TableSpec(
+    "tracks",
+    pa.schema(
+        [
+            ("id", pa.int32()),  # sequence-wide instance id (upper 16 bits of the label)
+            ("class_id", pa.int32()),  # majority train id over the track's points
+            ("raw_class", pa.int32()),  # the same through learning_map_inv
+            ("first_frame", pa.int32()),  # frame indices (the ingest frame table's ``index``)
+            ("last_frame", pa.int32()),
+            ("n_points", pa.int64()),
+            ("n_frames", pa.int32()),
+            ("confidence", pa.float64()),  # point-weighted mean of fuse's instance confidence
+            ("min_link_iou", pa.float64()),  # lowest IoU that carried the id across volumes (NaN: none)
+            ("frames", pa.list_(pa.int32())),  # frames the track has points in
+            ("frame_points", pa.list_(pa.int64())),  # its points in each of those frames
+        ]
+    ),
+    roles=(
+        ("id", "id"),
+        ("class_id", "class_id"),
+        ("points", "n_points"),
+        ("item", "first_frame"),
+        ("confidence", "confidence"),
+    ),
+)
+
+FRAME_LABEL = ArraySpec(
+    "label",
+    "uint32",
+    doc="raw semantic | sequence-wide instance id << 16, in the frame's original point order",
+)
+"""The per-frame final label array: every method's labels stage declares it (export and score read it)."""
 
 
 class StitchStage(Stage):
@@ -59,10 +92,13 @@ class StitchStage(Stage):
     upstream = ("fuse", "align")
     version = "1"
     Config = StitchConfig
+    item = "frame"
+    arrays = (FRAME_LABEL,)
+    tables = (TRACKS,)
 
     def plan(self, ctx: StageContext) -> Plan:
         t = ctx.frames.to_pydict()
-        align = ctx.store.read_manifest(ctx.sequence, "align")
+        align = ctx.manifest("align")
         ok = [i for i, s in zip(t["index"], t["status"], strict=True) if s == "ok"]
         sizes = dict(zip(t["index"], t["n_points"], strict=True))
         return Plan(
@@ -73,29 +109,28 @@ class StitchStage(Stage):
         )
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
-        from dsnet_core.labels import load_label_map
         from dsnet_core.temporal.stitching import Stitcher, VolumeLabels
 
         todo = set(items)  # the runner passes only the frames not yet done
         if not todo:
             return
-        label_map = load_label_map("semantic-kitti")
+        label_map = ctx.label_map
         windows = [list(w) for w in ctx.plan["windows"]]
         frame_points = np.asarray(ctx.plan["frame_points"], np.int64)
         # the stitcher wants contiguous frame numbers: use ranks among the frames in any window
         absolute = np.array(sorted({f for w in windows for f in w}), np.int64)
         lut = np.zeros(int(absolute.max(initial=0)) + 1, np.int64)
         lut[absolute] = np.arange(absolute.size)
-        fingerprint = ctx.store.read_manifest(ctx.sequence, "stitch").fingerprint
-        out = ctx.store.arrays(ctx.sequence, "stitch")
+        fingerprint = ctx.manifest(self.name).fingerprint
+        out = ctx.arrays(self.name)
         stitcher, start = self._resume(ctx, fingerprint, windows, out.done(), label_map)
         if stitcher is None:
             stitcher = Stitcher(label_map, min_iou=ctx.config.min_iou)
         else:
             log.info("stitch %s resumes after volume %d from its saved state", ctx.sequence, start - 1)
         scores = self._scores(ctx)
-        align = ctx.store.arrays(ctx.sequence, "align")
-        fuse = ctx.store.arrays(ctx.sequence, "fuse")
+        align = ctx.arrays("align")
+        fuse = ctx.arrays("fuse")
         for v in range(start, len(windows)):
             w = windows[v]
             src = align.read_item(v, ["source_frame", "source_index"])
@@ -126,16 +161,15 @@ class StitchStage(Stage):
                     counts={"frames": 1, "points": n, "tracks": len(rows.get("tracks", []))},
                 )
             # runs once the runner has written every frame of this volume (done flags set)
-            ctx.store.root.write_json(
-                _state_rel(ctx), {"fingerprint": fingerprint, "volume": v, "state": stitcher.state_dict()}
-            )
-        ctx.store.root.remove(_state_rel(ctx))
+            state = {"fingerprint": fingerprint, "volume": v, "state": stitcher.state_dict()}
+            ctx.store.write_stage_state(ctx.sequence, self.name, state)
+        ctx.store.write_stage_state(ctx.sequence, self.name, None)
 
     def _resume(self, ctx: StageContext, fingerprint: str, windows, done: np.ndarray, label_map):
         """(stitcher, first volume to compute) from a saved state that is still valid, else (None, 0)."""
         from dsnet_core.temporal.stitching import Stitcher
 
-        saved = ctx.store.root.read_json(_state_rel(ctx))
+        saved = ctx.store.read_stage_state(ctx.sequence, self.name)
         if saved is None or saved.get("fingerprint") != fingerprint:
             return None, 0
         v = int(saved["volume"])
@@ -146,7 +180,7 @@ class StitchStage(Stage):
 
     @staticmethod
     def _scores(ctx: StageContext) -> dict[int, dict[int, float]]:
-        t = ctx.store.read_table(ctx.sequence, "fuse", "instances").to_pydict()
+        t = ctx.table("fuse", "instances").to_pydict()
         out: dict[int, dict[int, float]] = {}
         for v, i, c in zip(t["index"], t["id"], t["confidence"], strict=True):
             if c is not None and not math.isnan(c):
@@ -155,24 +189,11 @@ class StitchStage(Stage):
 
     @staticmethod
     def _track_rows(stitcher, label_map, absolute: np.ndarray) -> list[dict]:
-        t = stitcher.track_table()
-        raw = label_map.to_raw(t.semantic) if t.id.size else np.zeros(0, np.int64)
-        rows = []
-        for k, tid in enumerate(t.id.tolist()):
-            sel = t.frame_track == tid
-            rows.append(
-                {
-                    "id": tid,
-                    "class_id": int(t.semantic[k]),
-                    "raw_class": int(raw[k]),
-                    "first_frame": int(absolute[t.first_frame[k]]),
-                    "last_frame": int(absolute[t.last_frame[k]]),
-                    "n_points": int(t.n_points[k]),
-                    "n_frames": int(t.n_frames[k]),
-                    "confidence": float(t.confidence[k]),
-                    "min_link_iou": float(t.min_link_iou[k]),
-                    "frames": absolute[t.frame_index[sel]].astype(int).tolist(),
-                    "frame_points": t.frame_points[sel].astype(int).tolist(),
-                }
-            )
+        """The ``tracks`` rows: the track table's columns, its frame ranks put back to frame indices."""
+        cols = stitcher.track_table().columns(label_map)
+        rows = [dict(zip(cols, values, strict=True)) for values in zip(*cols.values(), strict=True)]
+        for row in rows:
+            row["first_frame"] = int(absolute[row["first_frame"]])
+            row["last_frame"] = int(absolute[row["last_frame"]])
+            row["frames"] = absolute[np.asarray(row["frames"], np.int64)].tolist()
         return rows

@@ -8,9 +8,9 @@ from pathlib import Path
 import torch
 
 from dsnet_core.instance.shifting import DynamicShift
-from dsnet_core.labels import load_label_map
+from dsnet_core.labels import class_map_of, load_label_map
 from dsnet_core.model.bundle import save_shift_weights
-from dsnet_core.model.checkpoint import ModelCard, class_map_of, save_checkpoint
+from dsnet_core.model.checkpoint import ModelCard, save_checkpoint
 from dsnet_core.model.cylinder import CylinderGrid
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig

@@ -50,9 +50,10 @@ def golden_ckpt(tmp_path_factory) -> Path:
 
 def _label_run(log: Path, ckpt: Path, root: Path, scans: int):
     from flows.export import export_semantickitti
+    from flows.report import write_report
     from storage.run import RunStore
+    from tasks.methods import get_pipeline
     from tasks.runner import run_stage_plain
-    from tasks.score_report import write_report
 
     store = RunStore(root / "run")
     run = {
@@ -64,17 +65,19 @@ def _label_run(log: Path, ckpt: Path, root: Path, scans: int):
         },
         "options": {"block_size": 2},
     }
+    pipeline = get_pipeline("dsnet")
+    assert pipeline.names() == list(STAGES)
     store.write_run_config("golden", run)
     for stage in STAGES:
-        run_stage_plain(store, "00", stage, run, "golden")
-    write_report(store, bev_frames=3, review_rows=5)
+        run_stage_plain(store, pipeline, "00", stage, run, "golden")
+    write_report(store, pipeline, bev_frames=3, review_rows=5)
     export_semantickitti(str(root / "run"), root / "pred")
     return store
 
 
 def _digests(store, pred: Path) -> dict[str, str]:
     from dsnet_core.viz.png import decode_png
-    from tasks.score_report import read_report_table
+    from flows.report import read_report_table
 
     h = hashlib.sha256()
     files = sorted((pred / "sequences" / "00" / "predictions").glob("*.label"))

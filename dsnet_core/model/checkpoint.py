@@ -25,7 +25,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from dsnet_core.errors import CheckpointError, CheckpointMismatchError
-from dsnet_core.labels import LabelMap
+from dsnet_core.labels import LabelMap, class_map_of
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
 
@@ -62,16 +62,6 @@ class ModelCard:
     @property
     def config(self) -> ModelConfig:
         return ModelConfig.from_dict(self.architecture)
-
-
-def class_map_of(label_map: LabelMap) -> dict:
-    """The part of a label map a model depends on (stored in, and checked against, the card)."""
-    return {
-        "name": label_map.name,
-        "class_names": list(label_map.class_names),
-        "things": list(label_map.things),
-        "learning_map_inv": {str(k): int(v) for k, v in sorted(label_map.learning_map_inv.items())},
-    }
 
 
 def code_version() -> str:

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from flows.commands.common import errors_exit
+
 
 def dashboard(
     roots: list[str] = typer.Argument(..., help="Run store roots; the first is the baseline (A) for deltas."),
@@ -14,11 +16,7 @@ def dashboard(
 ) -> None:
     """Write a self-contained HTML dashboard (works offline) from the runs' score tables."""
     from flows.dashboard import build_dashboard
-    from storage.errors import StoreError
 
-    try:
+    with errors_exit():
         path = build_dashboard(roots, out, title)
-    except StoreError as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from None
     typer.echo(f"wrote dashboard {path.resolve()}")

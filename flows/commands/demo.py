@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from flows.commands.common import errors_exit
+
 
 def demo(
     out: Path = typer.Option(
@@ -19,21 +21,28 @@ def demo(
     checkpoint: Path = typer.Option(None, help="Use this checkpoint instead of the bundled model."),
 ) -> None:
     """Generate a small synthetic log, label it with the bundled model, export and score it."""
+    import json
     import shutil
 
     from dsnet_core.io.describe import summarize
     from dsnet_core.io.formats import open_log
     from dsnet_core.model.bundle import bundled_checkpoint, bundled_dir
     from dsnet_core.model.checkpoint import read_card
-    from flows.cli import _fail, _print_summary
-    from flows.commands.synth import _generate
+    from flows.commands.describe import print_log_summary
+    from flows.commands.eval import print_result, score_predictions
+    from flows.commands.label import print_summary, run_label
+    from flows.commands.synth import generate
+    from flows.export import export_semantickitti
+    from flows.request import LabelRequest, stage_settings
 
     log, run, pred = out / "log", out / "run", out / "predictions"
     typer.echo(f"[1/5] generating a synthetic {sensor} log: 1 sequence × {frames} frames, seed {seed}")
-    _generate(log, 1, frames, seed, sensor, 0, True, _fail)
+    with errors_exit():
+        generate(log, 1, frames, seed, sensor, 0, True)
     typer.echo(f"      wrote {log.resolve() / 'sequences' / '00'}")
-    typer.echo("[2/5] reading it back through the SemanticKITTI reader (every file checked)")
-    _print_summary(summarize(open_log(log)))
+    typer.echo("[2/5] reading it back through its log reader (every file checked)")
+    with errors_exit():
+        print_log_summary(summarize(open_log(log)))
 
     ckpt = checkpoint if checkpoint is not None else bundled_checkpoint(scans)
     if ckpt is None:
@@ -45,11 +54,8 @@ def demo(
             f"  dsnet label {log} --run {run} --checkpoint PATH"
         )
         return
-    try:
+    with errors_exit():
         card = read_card(ckpt)
-    except Exception as exc:  # a typed CheckpointError naming the file
-        _fail(exc)
-        return
     source = "bundled model" if checkpoint is None else "checkpoint"
     typer.echo(f"model: {source} {Path(ckpt).resolve()} (epochs {card.epochs or 'none'})")
     if not card.epochs:
@@ -59,29 +65,24 @@ def demo(
             fg=typer.colors.YELLOW,
         )
     typer.echo(f"[3/5] labelling with k = {scans} ({'3D' if scans == 1 else '4D'} panoptic) into {run}")
-    from flows.commands.label import _print_summary as print_label_summary
-    from flows.commands.label import run_label_flow, stage_settings
-
-    stages = stage_settings(scans, None, str(ckpt), None)
-    summary = run_label_flow(str(log), str(run), ["00"], stages, {"block_size": 25})
-    print_label_summary(summary)
+    request = LabelRequest(
+        data=str(log), root=str(run), sequences=["00"], stages=stage_settings(scans, checkpoint=str(ckpt))
+    )
+    summary = run_label(request)
+    print_summary(summary)
     if any(r["action"] == "failed" for r in summary):
         raise typer.Exit(code=1)
 
     typer.echo(f"[4/5] exporting SemanticKITTI predictions to {pred}")
-    from flows.export import export_semantickitti
-
     shutil.rmtree(pred, ignore_errors=True)
-    exported = export_semantickitti(str(run), pred)
+    with errors_exit():
+        exported = export_semantickitti(str(run), pred)
     typer.echo(f"      {exported.frames.get('00', 0)} label files")
 
     typer.echo("[5/5] scoring against the log's ground truth (PQ family, mIoU, LSTQ)")
-    result = score(log, pred, ["00"])
-    from flows.commands.eval import _print_result
-
-    _print_result(result)
-    import json
-
+    with errors_exit():
+        result = score_predictions(log, pred, ["00"])
+    print_result(result)
     scores = out / "scores.json"
     scores.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
     typer.echo(
@@ -93,15 +94,3 @@ def demo(
     )
     if (run / "dashboard.html").exists():  # written by the label flow's score report
         typer.echo(f"dashboard {(run / 'dashboard.html').resolve()}")
-
-
-def score(gt: Path, pred: Path, sequences: list[str]):
-    """Score ``pred``'s predictions against ``gt``'s labels (official mode) → ``EvalResult``."""
-    from dsnet_core.labels import load_label_map
-    from dsnet_core.metrics.evaluator import PanopticEvaluator
-    from dsnet_core.metrics.pairing import iter_pairs, pair_label_files
-
-    ev = PanopticEvaluator(load_label_map("semantic-kitti"), keep_rows=False)
-    for pair, g, p in iter_pairs(pair_label_files(gt, pred, sequences)):
-        ev.add(g, p, frame=pair.frame, sequence=pair.sequence)
-    return ev.result()

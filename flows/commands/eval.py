@@ -9,6 +9,8 @@ from pathlib import Path
 
 import typer
 
+from flows.commands.common import errors_exit
+
 
 def eval_command(
     gt: Path = typer.Option(..., "--gt", help="Ground-truth root (holds sequences/SS/labels/*.label)."),
@@ -28,43 +30,68 @@ def eval_command(
     json_out: Path = typer.Option(None, "--json", help="Also write the scores to this JSON file."),
 ) -> None:
     """Score predictions against ground truth: PQ family, mIoU and LSTQ, paired by file name."""
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from dsnet_core.errors import DsnetError
-    from dsnet_core.labels import load_label_map
-    from dsnet_core.metrics.evaluator import PanopticEvaluator
-    from dsnet_core.metrics.pairing import iter_pairs, pair_label_files
-
-    console = Console(stderr=True)
-    try:
-        label_map = load_label_map(data_config or "semantic-kitti")
-        if sequences:
-            seqs = [s for s in sequences.split(",") if s.strip()]
-        else:
-            seqs = [str(s) for s in label_map.split.get("valid", [])]
-            if not seqs:
-                raise typer.BadParameter("no --sequences given and the config has no 'valid' split")
-        ignore = _learning_ignore(data_config)
-        ev = PanopticEvaluator(label_map, min_points=min_points, mode=mode, keep_rows=False, ignore=ignore)
-        pairs = pair_label_files(gt, pred, seqs)
-        columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-        with Progress(*columns, console=console, transient=True) as progress:
-            task = progress.add_task("frames", total=len(pairs))
-            for pair, g, p in iter_pairs(pairs):
-                ev.add(g, p, frame=pair.frame, sequence=pair.sequence)
-                progress.advance(task)
-        result = ev.result()
-    except (DsnetError, ValueError) as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from None
-    _print_result(result)
+    with errors_exit():
+        result = score_predictions(
+            gt,
+            pred,
+            sequences.split(",") if sequences else None,
+            data_config,
+            min_points,
+            mode,
+            progress=True,
+        )
+    print_result(result)
     if json_out is not None:
         import json
 
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
         typer.echo(f"wrote {json_out}")
+
+
+def score_predictions(
+    gt: Path,
+    pred: Path,
+    sequences: list[str] | None = None,
+    data_config: Path | None = None,
+    min_points: int | None = None,
+    mode: str = "official",
+    progress: bool = False,
+):
+    """Score a predictions folder against a ground-truth folder → ``EvalResult``.
+
+    Args:
+        sequences: sequences to score (default: the label config's ``valid`` split).
+        data_config: SemanticKITTI-style label YAML (default: the bundled semantic-kitti).
+
+    Raises:
+        DsnetError: a missing or mismatched file (named); ValueError: bad settings.
+    """
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from dsnet_core.labels import load_label_map
+    from dsnet_core.metrics.evaluator import PanopticEvaluator
+    from dsnet_core.metrics.pairing import iter_pairs, pair_label_files
+
+    label_map = load_label_map(data_config or "semantic-kitti")
+    seqs = (
+        [s for s in sequences if s.strip()]
+        if sequences
+        else [str(s) for s in label_map.split.get("valid", [])]
+    )
+    if not seqs:
+        raise ValueError("no --sequences given and the label config has no 'valid' split")
+    ignore = _learning_ignore(data_config)
+    ev = PanopticEvaluator(label_map, min_points=min_points, mode=mode, keep_rows=False, ignore=ignore)
+    pairs = pair_label_files(gt, pred, seqs)
+    columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=Console(stderr=True), transient=True, disable=not progress) as bar:
+        task = bar.add_task("frames", total=len(pairs))
+        for pair, g, p in iter_pairs(pairs):
+            ev.add(g, p, frame=pair.frame, sequence=pair.sequence)
+            bar.advance(task)
+    return ev.result()
 
 
 def _learning_ignore(data_config: Path | None) -> tuple[int, ...]:
@@ -78,7 +105,8 @@ def _learning_ignore(data_config: Path | None) -> tuple[int, ...]:
     return ignored or (0,)
 
 
-def _print_result(result) -> None:
+def print_result(result) -> None:
+    """The PQ family per class, PQ† and the LSTQ family, as tables."""
     from rich.console import Console
     from rich.table import Table
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from flows.commands.common import errors_exit
+
 
 def export(
     root: str = typer.Argument(..., help="Run store root (folder or s3://…)."),
@@ -21,13 +23,9 @@ def export(
     if format != "semantickitti":
         raise typer.BadParameter(f"unknown format {format!r} (available: semantickitti, nuscenes)")
     from flows.export import export_semantickitti
-    from storage.errors import StoreError
 
-    try:
+    with errors_exit():
         summary = export_semantickitti(root, out, sequences.split(",") if sequences else None)
-    except StoreError as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from None
     for seq, n in summary.frames.items():
         line = f"sequence {seq}: {n} label files"
         missing = summary.missing[seq]

@@ -6,18 +6,15 @@ from pathlib import Path
 
 import typer
 
+from flows.commands.common import errors_exit
+
 
 def export_nuscenes_command(root: str, out: Path, sequences: str | None) -> None:
     """Write ``OUT/panoptic/v1.0-trainval/<sequence>-<frame>_panoptic.npz`` and ``OUT/tokens.json``."""
-    from dsnet_core.errors import DsnetError
     from flows.export_nuscenes import export_nuscenes
-    from storage.errors import StoreError
 
-    try:
+    with errors_exit():
         result = export_nuscenes(root, out, sequences.split(",") if sequences else None)
-    except (StoreError, DsnetError) as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from None
     for seq, tokens in result.tokens.items():
         typer.echo(f"scene {seq}: {len(tokens)} panoptic files")
     typer.echo(f"wrote {result.folder.resolve()}")

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import typer
 
+from flows.commands.common import errors_exit
+
 
 def label(
-    data: str = typer.Argument(..., help="Log root in the SemanticKITTI layout (holds sequences/)."),
+    data: str = typer.Argument(..., help="Log root (any supported format; see --format)."),
     run: str = typer.Option(..., "--run", help="Run store root: a folder or s3://bucket/prefix."),
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
+    format: str = typer.Option("auto", "--format", help="Log format (default: detected from the log)."),
+    method: str = typer.Option("dsnet", "--method", help="Labelling method (see the README's method table)."),
     scans: int = typer.Option(2, min=1, max=16, help="k, scans per 4D volume (1 = 3D, 2 = 4D default)."),
-    stride: int = typer.Option(None, help="Step between volumes (default k-1, or 1 for k=1)."),
+    stride: int = typer.Option(None, min=1, help="Step between volumes (default k-1, or 1 for k=1)."),
     checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled demo model)."),
     clusterer: str = typer.Option(
         None, help="dynamic_shift (default), meanshift, dbscan, hdbscan or bfs; or a JSON clusterer config."
@@ -25,90 +29,60 @@ def label(
     from_stage: str = typer.Option(None, help="Recompute this stage and everything downstream."),
     force: bool = typer.Option(False, help="Recompute every stage."),
     on_error: str = typer.Option("fail", help="fail: stop on a bad frame; skip: quarantine it and go on."),
-    workers: int = typer.Option(None, help="Run blocks on a local Dask cluster of N worker processes."),
+    workers: int = typer.Option(
+        None, min=1, help="Run blocks on a local Dask cluster of N worker processes."
+    ),
     dask_address: str = typer.Option(
         None, help="Run blocks on an existing Dask scheduler (tcp://host:port)."
     ),
-    block_size: int = typer.Option(25, help="Frames or volumes per task."),
-    lock_wait: float = typer.Option(0.0, help="Seconds to wait for another run's lock before failing."),
+    block_size: int = typer.Option(25, min=1, help="Frames or volumes per task."),
+    lock_wait: float = typer.Option(
+        0.0, min=0.0, help="Seconds to wait for another run's lock before failing."
+    ),
 ) -> None:
-    """Label a log into a run store (ingest → align → infer → shift → fuse → stitch), resuming
+    """Label a log into a run store (ingest → align → infer → shift → fuse → stitch → score), resuming
     whatever is already done there."""
     if on_error not in ("fail", "skip"):
         raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
     if workers and dask_address:
         raise typer.BadParameter("give --workers or --dask-address, not both")
-    stages = stage_settings(scans, stride, checkpoint, clusterer, estimate_poses)
-    options = {"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait}
-    seqs = sequences.split(",") if sequences else None
-    summary = run_label_flow(
-        data, run, seqs, stages, options, from_stage, force, until, workers, dask_address
-    )
-    _print_summary(summary)
+    from flows.request import LabelRequest, stage_settings
+
+    with errors_exit():
+        request = LabelRequest(
+            data=data,
+            root=run,
+            sequences=sequences.split(",") if sequences else None,
+            format=format,
+            method=method,
+            stages=stage_settings(scans, stride, checkpoint, clusterer, estimate_poses),
+            options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
+            from_stage=from_stage,
+            until=until,
+            force=force,
+        )
+    summary = run_label(request, workers, dask_address)
+    print_summary(summary)
     typer.echo(f"wrote run store {run}")
     if any(r["action"] == "failed" for r in summary):
         raise typer.Exit(code=1)
 
 
-def stage_settings(
-    scans: int,
-    stride: int | None,
-    checkpoint: str | None,
-    clusterer: str | None,
-    estimate_poses: bool = False,
-) -> dict[str, dict]:
-    """The per-stage config of a label run from the command-line options."""
-    import json
-    from pathlib import Path
-
-    stages: dict[str, dict] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
-    if estimate_poses:
-        stages["ingest"] = {"estimate_poses": True}
-    if checkpoint:
-        stages["infer"] = {"checkpoint": str(Path(checkpoint).expanduser().resolve())}
-    if clusterer:
-        try:
-            cfg = json.loads(clusterer) if clusterer.lstrip().startswith("{") else {"kind": clusterer}
-        except json.JSONDecodeError as exc:
-            raise typer.BadParameter(f"--clusterer is not valid JSON: {exc}") from None
-        stages["shift"] = {"clusterer": cfg}
-    return stages
-
-
-def run_label_flow(
-    data,
-    run,
-    seqs,
-    stages,
-    options,
-    from_stage=None,
-    force=False,
-    until=None,
-    workers=None,
-    dask_address=None,
-) -> list[dict]:
-    """Run ``label-dataset`` with progress bars; typed errors become exit code 2 with the message."""
+def run_label(request, workers: int | None = None, dask_address: str | None = None) -> list[dict]:
+    """Run ``label-dataset`` for a :class:`~flows.request.LabelRequest` with progress bars, on the
+    configured Prefect server or a temporary one; typed errors exit with code 2 and the message."""
     import os
 
     from flows.server import prefect_api, quiet_prefect_env
 
     quiet_prefect_env()
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")  # keep the progress bars readable
-    from pydantic import ValidationError
+    with errors_exit(), prefect_api():
+        from flows.label import label_dataset, task_runner
 
-    from dsnet_core.errors import DsnetError
-    from storage.errors import StoreError
-
-    try:
-        with prefect_api():
-            from flows.label import label_dataset, task_runner
-
-            flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
-            with _progress_bars():
-                return flow(data, run, seqs, stages, options, from_stage, force, until=until)
-    except (DsnetError, StoreError, ValueError, ValidationError) as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from None
+        flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
+        with _progress_bars():
+            return flow(request)
 
 
 def status(root: str = typer.Argument(..., help="Run store root (folder or s3://…).")) -> None:
@@ -116,23 +90,20 @@ def status(root: str = typer.Argument(..., help="Run store root (folder or s3://
     from rich.console import Console
     from rich.table import Table
 
-    from storage.errors import StoreError
     from storage.run import RunStore
-    from tasks.registry import stage_order
+    from tasks.methods import run_pipeline
     from tasks.runner import stage_state
 
     store = RunStore(root)
-    try:
+    with errors_exit():
         run = store.read_run_config()
-    except StoreError as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from None
-    table = Table(title=f"run store {store.uri} (last run {run.get('run_id')})")
+        pipeline = run_pipeline(run)
+    table = Table(title=f"run store {store.uri} (last run {run.get('run_id')}, method {pipeline.name})")
     for col in ("sequence", "stage", "state", "blocks", "items", "fingerprint", "seconds"):
         table.add_column(col)
     for seq in sorted(set(store.sequences()) | set(run.get("sequences", []))):
-        for stage in stage_order():
-            state, m, n_done = stage_state(store, seq, stage, run)
+        for stage in pipeline.names():
+            state, m, n_done = stage_state(store, pipeline, seq, stage, run)
             if state == "partial":
                 state = f"partial ({n_done} of {len(m.blocks)} blocks)"
             table.add_row(
@@ -176,7 +147,8 @@ def _progress_bars():
     return bars()
 
 
-def _print_summary(summary) -> None:
+def print_summary(summary) -> None:
+    """The label run's summary table (one row per sequence and stage)."""
     from rich.console import Console
     from rich.table import Table
 

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import typer
 
+from flows.commands.common import errors_exit, fail
+
 
 def serve(
-    watch: Path = typer.Option(
-        ..., "--watch", help="Log root to watch (SemanticKITTI layout, holds sequences/)."
-    ),
+    watch: Path = typer.Option(..., "--watch", help="Log root to watch (any supported format)."),
+    format: str = typer.Option("auto", "--format", help="Log format (default: detected)."),
     runs: str = typer.Option(..., "--runs", help="Run store root the labels and scores go to."),
     cron: str = typer.Option("0 * * * *", "--cron", help="When to look for new or stale sequences (cron)."),
     name: str = typer.Option(
@@ -32,20 +33,22 @@ def serve(
 
     quiet_prefect_env()
     if not os.environ.get("PREFECT_API_URL"):
-        typer.secho(
-            "error: schedules need a Prefect server: run `prefect server start --host 127.0.0.1` and "
-            "export PREFECT_API_URL=http://127.0.0.1:4200/api",
-            fg=typer.colors.RED,
-            err=True,
+        fail(
+            "schedules need a Prefect server: run `prefect server start --host 127.0.0.1` and "
+            "export PREFECT_API_URL=http://127.0.0.1:4200/api"
         )
-        raise typer.Exit(code=2)
-    from flows.commands.label import stage_settings
+    from flows.request import LabelRequest, stage_settings
     from flows.watch import serve as serve_deployment
 
-    stages = stage_settings(scans, None, checkpoint, None, estimate_poses)
+    with errors_exit():
+        request = LabelRequest(
+            data=str(watch.resolve()),
+            root=runs,
+            format=format,
+            stages=stage_settings(scans, checkpoint=checkpoint, estimate_poses=estimate_poses),
+            until=until,
+        )
+        request.order(request.pipeline())  # unknown stages fail now, not at the first tick
     typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
-    try:
-        serve_deployment(str(watch.resolve()), runs, cron, name, stages, until)
-    except ValueError as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from None
+    with errors_exit():
+        serve_deployment(request, cron, name)

@@ -1,11 +1,12 @@
-"""``dsnet synth``: synthetic driving logs (``_generate`` is shared with ``dsnet demo``). Heavy imports
-stay in the bodies."""
+"""``dsnet synth``: synthetic driving logs. Heavy imports stay in the bodies."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import typer
+
+from flows.commands.common import errors_exit
 
 
 def synth(
@@ -18,33 +19,38 @@ def synth(
     overwrite: bool = typer.Option(False, help="Replace sequences that already exist."),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
-    from flows.cli import _fail
-
-    names = _generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, _fail)
-    typer.echo(
-        f"wrote {len(names)} sequence(s) × {frames} frames ({sensor}) to {out.resolve() / 'sequences'}"
-    )
+    with errors_exit():
+        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite)
+    typer.echo(f"wrote {sequences} sequence(s) × {frames} frames ({sensor}) to {out.resolve() / 'sequences'}")
 
 
-def _generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, fail) -> list[str]:
+def generate(
+    out: Path,
+    sequences: int = 1,
+    frames: int = 20,
+    seed: int = 0,
+    sensor: str = "hdl64",
+    first_sequence: int = 0,
+    overwrite: bool = False,
+) -> list[str]:
+    """Write a synthetic log with a progress bar; returns the sequence names.
+
+    Raises:
+        DsnetError: bad settings, or sequences that exist without ``overwrite``.
+    """
     from rich.progress import Progress
 
-    from dsnet_core.errors import DsnetError
     from dsnet_core.synth import generate_log
 
-    try:
-        with Progress(transient=True) as progress:
-            task = progress.add_task("ray-casting sweeps", total=sequences * frames)
-            return generate_log(
-                out,
-                sequences=sequences,
-                frames=frames,
-                seed=seed,
-                sensor=sensor,
-                first_sequence=first_sequence,
-                overwrite=overwrite,
-                on_frame=lambda _seq, _i: progress.advance(task),
-            )
-    except DsnetError as exc:
-        fail(exc)
-        raise  # unreachable: fail() exits
+    with Progress(transient=True) as progress:
+        task = progress.add_task("ray-casting sweeps", total=sequences * frames)
+        return generate_log(
+            out,
+            sequences=sequences,
+            frames=frames,
+            seed=seed,
+            sensor=sensor,
+            first_sequence=first_sequence,
+            overwrite=overwrite,
+            on_frame=lambda _seq, _i: progress.advance(task),
+        )

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from flows.commands.common import fail
+
 
 def parse_epochs(text: str) -> dict[str, int]:
     """``"10"`` → 10 epochs for every stage; ``"semantic=10,offset=5"`` → per stage."""
@@ -113,8 +115,7 @@ def train(
 
             card = trainer.run(on_step=on_step)
     except DsnetError as exc:
-        typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-        raise typer.Exit(code=2) from exc
+        fail(exc)
     miou = card.metrics[-1]["val_miou"] if card.metrics else float("nan")
     typer.echo(f"wrote checkpoint {out.resolve()} (epochs {card.epochs}, val mIoU {miou:.4f})")
     typer.echo(f"metrics table: {out.resolve() / 'metrics.csv'}")

@@ -6,13 +6,10 @@ import posixpath
 from dataclasses import dataclass
 from typing import Any
 
-import pyarrow as pa
-import pyarrow.dataset as ds
-
-from storage.contract import CONTRACTS, REPORT_TABLES
+from flows.report.tables import REPORT_TABLES
 from storage.errors import StoreError
-from storage.fs import RootFS
-from storage.tables import read_table
+from storage.run import RunStore
+from tasks.score import FRAME_METRICS
 
 
 @dataclass
@@ -38,22 +35,18 @@ class RunTables:
     frames: dict[str, list[dict[str, Any]]]
 
 
-def _rows(root: RootFS, name: str) -> list[dict[str, Any]]:
+def _rows(store: RunStore, name: str) -> list[dict[str, Any]]:
     spec = REPORT_TABLES[name]
-    if not root.exists(posixpath.join("tables", name)):
+    if not store.has_table(spec):
         return []
-    return read_table(root, spec).select(spec.schema.names).to_pylist()
+    return store.read_all(spec).select(spec.schema.names).to_pylist()
 
 
-def _frames(root: RootFS) -> dict[str, list[dict[str, Any]]]:
-    spec = CONTRACTS["score"].table("frame_metrics")
-    base = posixpath.join("tables", spec.name)
-    if not root.exists(base):
+def _frames(store: RunStore) -> dict[str, list[dict[str, Any]]]:
+    if not store.has_table(FRAME_METRICS):
         return {}
-    part = ds.partitioning(pa.schema([("sequence", pa.string())]), flavor="hive")
-    fs = None if root.local else root.fs
-    table = ds.dataset(root.path(base), format="parquet", partitioning=part, filesystem=fs).to_table(
-        columns=["sequence", "index", "frame_id", "pq", "miou", "n_points", "tp", "fp", "fn"]
+    table = store.read_all(FRAME_METRICS).select(
+        ["sequence", "index", "frame_id", "pq", "miou", "n_points", "tp", "fp", "fn"]
     )
     out: dict[str, list[dict[str, Any]]] = {}
     for row in table.to_pylist():
@@ -65,19 +58,21 @@ def _frames(root: RootFS) -> dict[str, list[dict[str, Any]]]:
 
 def load_run(uri: str, label: str, storage_options: dict | None = None) -> RunTables:
     """Read one run store's report tables. Raises StoreError when the run was never scored."""
-    root = RootFS(uri, storage_options)
-    runs = _rows(root, "score_run")
+    store = RunStore(uri, storage_options)
+    runs = _rows(store, "score_run")
     if not runs:
-        raise StoreError(root.url("tables/score_run"), "no score report here: run the score stage first")
-    name = posixpath.basename(root.uri.rstrip("/")) or root.uri
+        raise StoreError(
+            store.root.url("tables/score_run"), "no score report here: run the score stage first"
+        )
+    name = posixpath.basename(store.uri.rstrip("/")) or store.uri
     return RunTables(
         label=f"{label} · {name}",
-        root=root.uri,
+        root=store.uri,
         run=runs[0],
-        sequences=sorted(_rows(root, "score_sequences"), key=lambda r: r["sequence"]),
-        classes=sorted(_rows(root, "score_classes"), key=lambda r: r["class_id"]),
-        timings=_rows(root, "stage_timings"),
-        bev=sorted(_rows(root, "score_bev"), key=lambda r: r["rank"]),
-        review=sorted(_rows(root, "review_queue"), key=lambda r: r["rank"]),
-        frames=_frames(root),
+        sequences=sorted(_rows(store, "score_sequences"), key=lambda r: r["sequence"]),
+        classes=sorted(_rows(store, "score_classes"), key=lambda r: r["class_id"]),
+        timings=_rows(store, "stage_timings"),
+        bev=sorted(_rows(store, "score_bev"), key=lambda r: r["rank"]),
+        review=sorted(_rows(store, "review_queue"), key=lambda r: r["rank"]),
+        frames=_frames(store),
     )

@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 from prefect.artifacts import Artifact
+from tasks.score_report import read_report_table
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from storage.contract import HEADLINE_KEYS
 from storage.run import RunStore
-from tasks.score_report import read_report_table
 from tests.model_helpers import make_checkpoint
 
 FAST_SHIFT = {"kind": "dynamic_shift", "n_seeds": 300, "bandwidths": [0.2, 1.8, 3.4]}

@@ -10,10 +10,10 @@ import time
 import pytest
 from prefect import flow
 from prefect.artifacts import Artifact
+from tasks.score_report import read_report_table
 
 from flows.publish import publish
 from storage.run import RunStore
-from tasks.score_report import read_report_table
 from tests.flows.conftest import REPO, cli
 from tests.tasks.oracle_stitch import install, score_runs
 

@@ -111,9 +111,10 @@ def install(monkeypatch: pytest.MonkeyPatch) -> dict:
 def score_runs(root, log, runs: dict[str, float], sequences=("00", "01"), block_size: int = 4, bev: int = 3):
     """Label (oracle stitch with the given noise) and score one run store per entry of ``runs``
     (``{name: noise}``) under ``root``; returns their URIs. Call with :func:`install` in effect."""
+    from tasks.score_report import write_report
+
     from storage.run import RunStore
     from tasks.runner import run_stage_plain
-    from tasks.score_report import write_report
 
     out = []
     for name, noise in runs.items():

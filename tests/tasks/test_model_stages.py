@@ -138,8 +138,9 @@ def test_clusterer_change_and_new_checkpoint_reprocess_only_downstream(labelled,
     other = make_checkpoint(tmp_path / "other", seed=1)
     new_model = run_config(synth_log, other)
     assert prepare_stage(store, "00", "align", new_model, "r3").action == "skip"
-    from storage.manifest import fingerprint
     from tasks.registry import STAGES as SPECS
+
+    from storage.manifest import fingerprint
     from tasks.runner import make_context, resolved_config
 
     def infer_fp(r):

@@ -10,6 +10,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pytest
+from tasks.score_report import read_report_table, write_report
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
@@ -18,7 +19,6 @@ from dsnet_core.viz.png import decode_png
 from storage.contract import HEADLINE_KEYS
 from storage.run import RunStore
 from tasks.runner import prepare_stage, run_stage_plain
-from tasks.score_report import read_report_table, write_report
 from tests.tasks.oracle_stitch import perturb
 
 SEQS = ("00", "01")
@@ -197,8 +197,9 @@ def test_a_log_without_ground_truth_scores_nothing(oracle_stages, tmp_path):
 def test_model_card_id_names_the_checkpoint_and_its_weights(tmp_path):
     import json
 
-    from storage.manifest import Manifest
     from tasks.score_report import model_card_id
+
+    from storage.manifest import Manifest
 
     store = RunStore(tmp_path / "run")
     ckpt = tmp_path / "tiny-v2"

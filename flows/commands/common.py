@@ -1,0 +1,32 @@
+"""What every command shares: one way to turn a typed error into ``error: ...`` and exit code 2."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from typing import NoReturn
+
+import typer
+
+
+def fail(exc: BaseException | str) -> NoReturn:
+    """Print ``error: <message>`` in red on stderr and exit with code 2."""
+    typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+@contextlib.contextmanager
+def errors_exit() -> Iterator[None]:
+    """Turn the project's typed errors (bad input, store problems, invalid settings) into :func:`fail`.
+
+    Only typed errors: anything else is a bug and keeps its traceback.
+    """
+    from pydantic import ValidationError
+
+    from dsnet_core.errors import DsnetError
+    from storage.errors import StoreError
+
+    try:
+        yield
+    except (DsnetError, StoreError, ValueError, ValidationError) as exc:
+        fail(exc)

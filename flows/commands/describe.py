@@ -1,0 +1,51 @@
+"""``dsnet describe``: check every file of a log and print its size and class histogram."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from flows.commands.common import errors_exit
+
+
+def describe(
+    data: Path = typer.Argument(..., help="Log root (any format `dsnet label` reads)."),
+    sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
+    format: str = typer.Option("auto", "--format", help="Log format (default: detected)."),
+) -> None:
+    """Check every file of a log and print frames, points and the class histogram."""
+    from dsnet_core.io.describe import summarize
+    from dsnet_core.io.formats import open_log
+
+    with errors_exit():
+        summary = summarize(open_log(data, format), sequences.split(",") if sequences else None)
+    print_log_summary(summary)
+
+
+def print_log_summary(summary) -> None:
+    """The sequences table and, for labelled logs, the class histogram."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    table = Table(title="sequences")
+    for col in ("sequence", "frames", "points", "points/frame", "poses"):
+        table.add_column(col, justify="right")
+    for seq, n in summary.frames.items():
+        pts = summary.points[seq]
+        table.add_row(
+            seq, str(n), str(pts), f"{pts / max(n, 1):.0f}", "yes" if summary.has_poses[seq] else "no"
+        )
+    console.print(table)
+    if summary.class_points:
+        total = sum(summary.class_points.values())
+        hist = Table(title="class histogram (train ids)")
+        for col in ("class", "points", "share", "instances"):
+            hist.add_column(col, justify="right")
+        for name, pts in summary.class_points.items():
+            inst = summary.class_instances.get(name)
+            hist.add_row(
+                name, str(pts), f"{100 * pts / max(total, 1):.2f}%", "" if inst is None else str(inst)
+            )
+        console.print(hist)

@@ -1,0 +1,202 @@
+"""The dataset-level score report: merge every scored sequence's accumulators, write report tables.
+
+Reads the score stage's block states and ``frame_metrics`` table, the manifests, and (for the
+pictures) the scans, final labels and ground truth of the worst frames; writes the tables of
+:data:`flows.report.tables.REPORT_TABLES` under ``ROOT/tables/``. Every dataset-level number
+comes from merged accumulators. Safe to call again at any time: it rewrites the tables whole.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from dsnet_core.labels import label_map_from_class_map
+from dsnet_core.metrics import EvalResult, PanopticEvaluator
+from dsnet_core.metrics.state import restore_evaluator, state_from_bytes
+from flows.report.pictures import bev_rows
+from flows.report.review import review_queue
+from flows.report.tables import HEADLINE_KEYS, REPORT_TABLES
+from storage.run import RunStore
+from tasks.base import CLASS_MAP
+from tasks.methods import run_pipeline
+from tasks.pipeline import Pipeline
+from tasks.score import FRAME_METRICS, ScoreConfig, block_state_name, make_evaluator
+
+SCORE = "score"
+
+
+@dataclass
+class ScoreReport:
+    """What :func:`write_report` computed (the same values as the tables it wrote)."""
+
+    run: dict[str, Any]
+    sequences: list[dict[str, Any]] = field(default_factory=list)
+    classes: list[dict[str, Any]] = field(default_factory=list)
+    tables: dict[str, str] = field(default_factory=dict)
+
+
+def sequence_evaluator(store: RunStore, sequence: str, label_map) -> PanopticEvaluator | None:
+    """The merged accumulators of one sequence's finished score stage (None if not scored).
+
+    Args:
+        label_map: the ground truth's label map.
+    """
+    m = store.read_manifest(sequence, SCORE)
+    if m is None or m.status != "done" or m.n_items == 0:  # not scored, or no ground truth
+        return None
+    ev = make_evaluator(ScoreConfig.model_validate(m.config), label_map)
+    for items in m.blocks:
+        data = store.read_block_bytes(sequence, SCORE, block_state_name(items[0]))
+        ev.merge(restore_evaluator(ev.label_map, state_from_bytes(data)))
+    return ev
+
+
+def _headline(res: EvalResult) -> dict[str, float | None]:
+    p, t = res.panoptic, res.lstq
+    out = {}
+    for key in HEADLINE_KEYS:
+        v = getattr(p, key) if hasattr(p, key) else getattr(t, key)
+        out[key] = float(v) if math.isfinite(v) else None
+    return out
+
+
+def config_hash(run: dict[str, Any]) -> str:
+    """sha256[:16] of the run's stage configs (what decides the labels and the scores)."""
+    payload = json.dumps(run.get("stages", {}), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+def _model_plan(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> dict[str, Any]:
+    """The plan of the first finished stage that recorded the model's class map (empty: none)."""
+    for seq in sequences:
+        for stage in pipeline.upstream_closure(pipeline.labels):
+            m = store.read_manifest(seq, stage)
+            if m is not None and CLASS_MAP in m.plan:
+                return m.plan
+    return {}
+
+
+def write_report(
+    store: RunStore, pipeline: Pipeline | None = None, bev_frames: int = 6, review_rows: int = 30
+) -> ScoreReport | None:
+    """Merge the scored sequences and write the report tables. Returns None when nothing is scored.
+
+    Args:
+        pipeline: the run's method (default: the one its run config records).
+    """
+    from dsnet_core.io.formats import open_log
+
+    run = store.read_run_config()
+    pipeline = pipeline or run_pipeline(run)
+    sequences = sorted(store.sequences())
+    if SCORE not in pipeline or not any(_scored(store, s) for s in sequences):
+        return None
+    gt_map = open_log(run["data"], run.get("format", "auto"), run.get("reader_options")).label_map
+    evals = {s: ev for s in sequences if (ev := sequence_evaluator(store, s, gt_map)) is not None}
+    if not evals:
+        return None
+    total: PanopticEvaluator | None = None
+    seq_rows = []
+    frames = _frame_table(store, sequences)
+    for seq, ev in evals.items():
+        res = ev.result()
+        p = ev.panoptic
+        seq_rows.append(
+            {
+                "sequence": seq,
+                "frames": res.frames,
+                "points": int(sum(frames.get(seq, {}).get("n_points", []))),
+                **_headline(res),
+                "tp": int(p.tp[ev.spec.include].sum()),
+                "fp": int(p.fp[ev.spec.include].sum()),
+                "fn": int(p.fn[ev.spec.include].sum()),
+            }
+        )
+        total = ev if total is None else total.merge(ev)
+    res = total.result()
+    spec = total.spec
+    class_rows = [
+        {
+            "class_id": int(k),
+            "class": spec.names[k],
+            "kind": "thing" if k in spec.things else "stuff",
+            **{
+                key: float(getattr(res.panoptic.per_class[spec.names[k]], key))
+                for key in ("pq", "sq", "rq", "iou")
+            },
+            **{key: int(getattr(res.panoptic.per_class[spec.names[k]], key)) for key in ("tp", "fp", "fn")},
+        }
+        for k in spec.include
+    ]
+    model = _model_plan(store, pipeline, sequences)
+    run_row = {
+        "run_id": str(run.get("run_id", "")),
+        "root": store.uri,
+        "mode": str(res.mode),
+        "model_card": str(model.get("model_card", "")),
+        "config_hash": config_hash(run),
+        "min_points": total.min_points,
+        "sequences": len(evals),
+        "frames": res.frames,
+        "points": int(sum(r["points"] for r in seq_rows)),
+        **_headline(res),
+        "created": time.time(),
+    }
+    model_map = label_map_from_class_map(model[CLASS_MAP]) if CLASS_MAP in model else None
+    out = ScoreReport(run_row, seq_rows, class_rows)
+    for name, rows in (
+        ("score_run", [run_row]),
+        ("score_sequences", seq_rows),
+        ("score_classes", class_rows),
+        ("stage_timings", timing_rows(store, pipeline, sequences)),
+        ("score_bev", bev_rows(store, pipeline, run, frames, total.label_map, bev_frames)),
+        ("review_queue", review_queue(store, pipeline, sequences, model_map, review_rows)),
+    ):
+        out.tables[name] = store.write_run_table(REPORT_TABLES[name], rows)
+    return out
+
+
+def _scored(store: RunStore, sequence: str) -> bool:
+    m = store.read_manifest(sequence, SCORE)
+    return m is not None and m.status == "done"
+
+
+def _frame_table(store: RunStore, sequences: list[str]) -> dict[str, dict[str, list]]:
+    """``frame_metrics`` by sequence (columns as lists), only sequences whose score stage is done."""
+    return {s: store.read_table(s, FRAME_METRICS).to_pydict() for s in sequences if _scored(store, s)}
+
+
+def timing_rows(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> list[dict[str, Any]]:
+    """One row per finished (sequence, stage) from its manifest's timings and counts."""
+    rows = []
+    for seq in sequences:
+        for stage in pipeline.names():
+            m = store.read_manifest(seq, stage)
+            if m is None or m.status != "done":
+                continue
+            block_s = float(m.timings.get("block_s", 0.0))
+            points = int(m.counts.get("points", 0))
+            rows.append(
+                {
+                    "sequence": seq,
+                    "stage": stage,
+                    "items": m.n_items,
+                    "points": points,
+                    "wall_s": float(m.timings.get("wall_s", 0.0)),
+                    "block_s": block_s,
+                    "items_per_s": m.n_items / block_s if block_s > 0 else None,
+                    "points_per_s": points / block_s if block_s > 0 else None,
+                    "fingerprint": m.fingerprint,
+                }
+            )
+    return rows
+
+
+def read_report_table(store: RunStore, name: str):
+    """A report table (pyarrow Table)."""
+    return store.read_all(REPORT_TABLES[name])

@@ -1,0 +1,57 @@
+"""The review queue: the least confident instances of a run, from every stage table that declares
+the ``confidence`` role (see :class:`storage.contract.TableSpec`).
+
+A table takes part by declaring roles for its columns: ``confidence`` (required), and ``id``,
+``class_id``, ``points`` and ``item`` where it has them; nothing is guessed from column names.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from dsnet_core.labels import LabelMap
+from storage.run import RunStore
+from tasks.pipeline import Pipeline
+
+
+def review_queue(
+    store: RunStore, pipeline: Pipeline, sequences: list[str], label_map: LabelMap | None, n: int
+) -> list[dict[str, Any]]:
+    """The ``n`` least confident instances across sequences and declaring tables.
+
+    Args:
+        label_map: the model's label map, for class names (None: class ids as text).
+    """
+    names = label_map.class_names if label_map is not None else ()
+    cands = []
+    for stage in pipeline:
+        for spec in stage.tables:
+            conf_col = spec.role("confidence")
+            if conf_col is None:
+                continue
+            id_col, cls_col, pts_col, item_col = (spec.role(r) for r in ("id", "class_id", "points", "item"))
+            for seq in sequences:
+                m = store.read_manifest(seq, stage.name)
+                if m is None or m.status != "done":
+                    continue
+                t = store.read_table(seq, spec).to_pydict()
+                for r, conf in enumerate(t[conf_col]):
+                    if conf is None or not math.isfinite(conf):
+                        continue
+                    cls = None if cls_col is None else t[cls_col][r]
+                    if cls is not None and 0 <= cls < len(names):
+                        cls = names[cls]
+                    cands.append(
+                        {
+                            "source": f"{stage.name}/{spec.name}",
+                            "sequence": seq,
+                            "item": None if item_col is None else t[item_col][r],
+                            "instance": int(t[id_col][r]) if id_col else r,
+                            "class": "" if cls is None else str(cls),
+                            "points": None if pts_col is None else int(t[pts_col][r]),
+                            "confidence": float(conf),
+                        }
+                    )
+    cands.sort(key=lambda r: (r["confidence"], r["source"], r["sequence"], r["instance"]))
+    return [{"rank": i, **r} for i, r in enumerate(cands[:n])]

@@ -1,0 +1,138 @@
+"""The report tables: dataset-level numbers merged from every scored sequence's accumulators.
+
+One file each, not partitioned (``tables/<name>/part-0.parquet``), rewritten whole on every report.
+"""
+
+from __future__ import annotations
+
+import pyarrow as pa
+
+from storage.contract import TableSpec
+
+_HEADLINE = [
+    ("pq", pa.float64()),
+    ("sq", pa.float64()),
+    ("rq", pa.float64()),
+    ("pq_dagger", pa.float64()),
+    ("pq_things", pa.float64()),
+    ("sq_things", pa.float64()),
+    ("rq_things", pa.float64()),
+    ("pq_stuff", pa.float64()),
+    ("sq_stuff", pa.float64()),
+    ("rq_stuff", pa.float64()),
+    ("miou", pa.float64()),
+    ("lstq", pa.float64()),
+    ("s_assoc", pa.float64()),
+    ("s_cls", pa.float64()),
+    ("iou_things", pa.float64()),
+    ("iou_stuff", pa.float64()),
+]
+HEADLINE_KEYS = tuple(name for name, _ in _HEADLINE)
+
+SCORE_RUN = TableSpec(
+    "score_run",
+    pa.schema(
+        [
+            ("run_id", pa.string()),
+            ("root", pa.string()),
+            ("mode", pa.string()),  # official | corrected
+            ("model_card", pa.string()),  # model card id ("" when unknown)
+            ("config_hash", pa.string()),  # sha256[:16] of the run's stage configs
+            ("min_points", pa.int64()),
+            ("sequences", pa.int64()),
+            ("frames", pa.int64()),
+            ("points", pa.int64()),
+            *_HEADLINE,
+            ("created", pa.float64()),  # unix seconds
+        ]
+    ),
+    partition=(),
+)
+SCORE_SEQUENCES = TableSpec(
+    "score_sequences",
+    pa.schema(
+        [
+            ("sequence", pa.string()),
+            ("frames", pa.int64()),
+            ("points", pa.int64()),
+            *_HEADLINE,
+            ("tp", pa.int64()),
+            ("fp", pa.int64()),
+            ("fn", pa.int64()),
+        ]
+    ),
+    partition=(),
+)
+SCORE_CLASSES = TableSpec(
+    "score_classes",
+    pa.schema(
+        [
+            ("class_id", pa.int32()),  # train id
+            ("class", pa.string()),
+            ("kind", pa.string()),  # thing | stuff
+            ("pq", pa.float64()),
+            ("sq", pa.float64()),
+            ("rq", pa.float64()),
+            ("iou", pa.float64()),
+            ("tp", pa.int64()),
+            ("fp", pa.int64()),
+            ("fn", pa.int64()),
+        ]
+    ),
+    partition=(),
+)
+STAGE_TIMINGS = TableSpec(
+    "stage_timings",
+    pa.schema(
+        [
+            ("sequence", pa.string()),
+            ("stage", pa.string()),
+            ("items", pa.int64()),
+            ("points", pa.int64()),
+            ("wall_s", pa.float64()),  # manifest: started -> finished of the last fresh run
+            ("block_s", pa.float64()),  # sum of block task times
+            ("items_per_s", pa.float64()),  # items / block_s
+            ("points_per_s", pa.float64()),
+            ("fingerprint", pa.string()),
+        ]
+    ),
+    partition=(),
+)
+SCORE_BEV = TableSpec(
+    "score_bev",
+    pa.schema(
+        [
+            ("rank", pa.int32()),  # 0 = worst frame
+            ("sequence", pa.string()),
+            ("index", pa.int32()),
+            ("frame_id", pa.string()),
+            ("pq", pa.float64()),
+            ("n_points", pa.int64()),
+            ("extent_m", pa.float64()),  # half width of the square picture, metres
+            ("png_pred", pa.binary()),  # prediction, coloured by instance (stuff: class)
+            ("png_gt", pa.binary()),  # ground truth, same colouring
+        ]
+    ),
+    partition=(),
+)
+REVIEW_QUEUE = TableSpec(
+    "review_queue",
+    pa.schema(
+        [
+            ("rank", pa.int32()),  # 0 = least confident
+            ("source", pa.string()),  # stage/table the instance came from
+            ("sequence", pa.string()),
+            ("item", pa.int32()),  # volume (fuse) or first frame (stitch) index, if known
+            ("instance", pa.int64()),
+            ("class", pa.string()),
+            ("points", pa.int64()),
+            ("confidence", pa.float64()),
+        ]
+    ),
+    partition=(),
+)
+
+REPORT_TABLES: dict[str, TableSpec] = {
+    spec.name: spec
+    for spec in (SCORE_RUN, SCORE_SEQUENCES, SCORE_CLASSES, STAGE_TIMINGS, SCORE_BEV, REVIEW_QUEUE)
+}

@@ -1,0 +1,107 @@
+"""What one labelling run is asked to do: :class:`LabelRequest`, shared by the flows, ``dsnet label``,
+``dsnet demo`` and the scheduled deployment of ``dsnet serve``.
+
+The command-line settings that shape the stages (k, stride, checkpoint, clusterer, pose
+estimation) become per-stage configs in exactly one place, :func:`stage_settings`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from tasks.base import RunOptions
+from tasks.methods import DEFAULT_METHOD, get_pipeline
+from tasks.pipeline import Pipeline
+
+
+class LabelRequest(BaseModel):
+    """One labelling run.
+
+    Attributes:
+        data: the log's root (any registered format).
+        root: the run store (a folder or ``s3://bucket/prefix``).
+        sequences: sequences to label (None: every sequence of the log).
+        format: the log's format name, or ``auto`` to detect it.
+        method: the method (:data:`tasks.methods.METHODS`) and ``method_options`` its factory's options.
+        stages: per-stage config overrides (``{"align": {"scans": 2}}``).
+        options: run-level policy (error handling, block size, locks).
+        from_stage: recompute this stage and everything downstream.
+        until: stop after this stage (default: run every stage).
+        force: recompute every stage.
+        storage_options: fsspec options of the run store.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    data: str
+    root: str
+    sequences: list[str] | None = None
+    format: str = "auto"
+    method: str = DEFAULT_METHOD
+    method_options: dict[str, Any] = Field(default_factory=dict)
+    stages: dict[str, dict[str, Any]] = Field(default_factory=dict)
+    options: RunOptions = Field(default_factory=RunOptions)
+    from_stage: str | None = None
+    until: str | None = None
+    force: bool = False
+    storage_options: dict[str, Any] = Field(default_factory=dict)
+
+    def pipeline(self) -> Pipeline:
+        """The method's stages. Raises ValueError for an unknown method or stage name."""
+        pipeline = get_pipeline(self.method, **self.method_options)
+        for name in (self.from_stage, self.until, *self.stages):
+            pipeline.check_stage(name)
+        return pipeline
+
+    def order(self, pipeline: Pipeline) -> list[str]:
+        """The stages this run executes, in order."""
+        return pipeline.until(self.until)
+
+    def forced(self, pipeline: Pipeline) -> set[str]:
+        """The stages this run recomputes whatever their manifests say."""
+        if self.force:
+            return set(pipeline.names())
+        if self.from_stage:
+            return {self.from_stage, *pipeline.downstream_of(self.from_stage)}
+        return set()
+
+    def dataset_name(self) -> str:
+        """A short name of the log (its folder's name), for artifact keys."""
+        return str(self.data).rstrip("/").rsplit("/", 1)[-1]
+
+
+def stage_settings(
+    scans: int = 2,
+    stride: int | None = None,
+    checkpoint: str | None = None,
+    clusterer: str | None = None,
+    estimate_poses: bool = False,
+) -> dict[str, dict[str, Any]]:
+    """The per-stage configs of the command-line settings.
+
+    Args:
+        scans: k, scans per volume.
+        stride: step between volumes (None: the stage's default).
+        checkpoint: model checkpoint folder (None: the bundled model), resolved to an absolute path.
+        clusterer: a clusterer kind (``dbscan``) or a JSON clusterer config.
+        estimate_poses: estimate poses for sequences without them.
+
+    Raises:
+        ValueError: ``clusterer`` is neither a kind nor valid JSON.
+    """
+    stages: dict[str, dict[str, Any]] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
+    if estimate_poses:
+        stages["ingest"] = {"estimate_poses": True}
+    if checkpoint:
+        stages["infer"] = {"checkpoint": str(Path(checkpoint).expanduser().resolve())}
+    if clusterer:
+        try:
+            cfg = json.loads(clusterer) if clusterer.lstrip().startswith("{") else {"kind": clusterer}
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--clusterer is not valid JSON: {exc}") from None
+        stages["shift"] = {"clusterer": cfg}
+    return stages

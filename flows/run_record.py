@@ -1,0 +1,82 @@
+"""A run's record in its store (config, code version, summary) and its Prefect summary artifacts."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+from prefect.artifacts import create_markdown_artifact, create_table_artifact
+
+from flows.request import LabelRequest
+from storage.run import RunStore
+from tasks.pipeline import Pipeline
+
+SUMMARY_COLUMNS = ("sequence", "stage", "action", "blocks_run", "items", "points", "seconds", "fingerprint")
+
+
+def code_version() -> str:
+    """Package version and, in a git checkout, the commit (recorded in the run config; fingerprints
+    use each stage's own ``version`` so an unrelated commit does not invalidate finished stages)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        out = f"dsnet-pipeline {version('dsnet-pipeline')}"
+    except PackageNotFoundError:
+        out = "dsnet-pipeline (not installed)"
+    repo = Path(__file__).resolve().parents[1]
+    if (repo / ".git").exists():
+        try:
+            res = subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], cwd=repo, capture_output=True, text=True, timeout=5
+            )
+            if res.returncode == 0:
+                out += f" git {res.stdout.strip()}"
+        except (OSError, subprocess.TimeoutExpired):
+            pass
+    return out
+
+
+def record_run(
+    store: RunStore, request: LabelRequest, pipeline: Pipeline, log_format: str, sequences: list[str]
+) -> tuple[str, dict[str, Any]]:
+    """Write the run's config to the store (``run.json`` and ``runs/<id>.json``); returns (id, config).
+
+    The config holds what every stage reads back: the log, its format, the method and each executed
+    stage's settings, and the run options.
+    """
+    run_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:6]}"
+    order = request.order(pipeline)
+    run = {
+        "code_version": code_version(),
+        **pipeline.record(),
+        "data": str(request.data),
+        "format": log_format,
+        "sequences": list(sequences),
+        "stages": {name: dict(request.stages.get(name, {})) for name in order},
+        "options": request.options.model_dump(),
+        "host": socket.gethostname(),
+        "started": time.time(),
+    }
+    store.write_run_config(run_id, run)
+    return run_id, run
+
+
+def report_run(store: RunStore, run_id: str, summary: list[dict[str, Any]]) -> None:
+    """The run's summary: into its record in the store, and as table + markdown artifacts."""
+    store.update_run_record(run_id, finished=time.time(), summary=summary)
+    rows = [{k: r.get(k, "") for k in SUMMARY_COLUMNS} for r in summary]
+    create_table_artifact(rows, key="label-summary", description=f"run {run_id}")
+    lines = [
+        f"# dsnet label run `{run_id}`",
+        "",
+        "| sequence | stage | action | blocks run | items | s |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in summary:
+        cells = [r["sequence"], r["stage"], r["action"], r.get("blocks_run", ""), r.get("items", "")]
+        lines.append("| " + " | ".join(str(c) for c in [*cells, r.get("seconds", "")]) + " |")
+    create_markdown_artifact("\n".join(lines), key="label-report", description=f"run {run_id}")

@@ -1,0 +1,55 @@
+"""The methods a run can use, each a factory of its :class:`~tasks.pipeline.Pipeline`.
+
+``dsnet`` is DS-Net (k = 1) and 4D-DS-Net (k > 1): ingest → align → infer → shift → fuse →
+stitch → score. A new method adds one factory to :data:`METHODS`; stages shared with another
+method (ingest, align) keep their names, so switching methods recomputes only what differs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from tasks.align import AlignStage
+from tasks.fuse import FuseStage
+from tasks.infer import InferStage
+from tasks.ingest import IngestStage
+from tasks.pipeline import Pipeline
+from tasks.score import ScoreStage
+from tasks.shift import ShiftStage
+from tasks.stitch import StitchStage
+
+
+def dsnet() -> Pipeline:
+    """DS-Net / 4D-DS-Net: offsets → dynamic shifting → fusion → stitching across volumes."""
+    stages = (
+        IngestStage(),
+        AlignStage(),
+        InferStage(),
+        ShiftStage(),
+        FuseStage(),
+        StitchStage(),
+        ScoreStage(labels="stitch"),
+    )
+    return Pipeline("dsnet", stages, labels="stitch")
+
+
+METHODS: dict[str, Callable[..., Pipeline]] = {"dsnet": dsnet}
+DEFAULT_METHOD = "dsnet"
+
+
+def get_pipeline(method: str = DEFAULT_METHOD, **options: Any) -> Pipeline:
+    """The pipeline of a method, built with its options.
+
+    Raises:
+        ValueError: unknown method (the message lists the methods).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; methods are {sorted(METHODS)}")
+    return METHODS[method](**options)
+
+
+def run_pipeline(run: dict[str, Any]) -> Pipeline:
+    """The pipeline a run config records (``method`` and ``method_options``; ``dsnet`` for run stores
+    written before methods existed)."""
+    return get_pipeline(run.get("method", DEFAULT_METHOD), **run.get("method_options", {}))

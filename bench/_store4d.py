@@ -17,6 +17,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dsnet_core.labels import LabelMap
 from dsnet_core.temporal.stitching import VolumeLabels
 from storage.run import RunStore
+from tasks.methods import get_pipeline
+
+P = get_pipeline()  # the DS-Net stages
 
 
 def stitched(store: RunStore, seq: str) -> list[np.ndarray]:
@@ -33,17 +36,17 @@ def stitched(store: RunStore, seq: str) -> list[np.ndarray]:
 
 def poses(store: RunStore, seq: str) -> np.ndarray:
     """``(F, 4, 4)`` LiDAR-frame poses the pipeline used (ingest's frame table)."""
-    t = store.read_table(seq, "ingest", "frames").to_pydict()
+    t = store.read_table(seq, P["ingest"].table("frames")).to_pydict()
     return np.asarray(t["pose"], np.float64).reshape(-1, 4, 4)
 
 
 def volumes(store: RunStore, seq: str) -> list[VolumeLabels]:
     """Every volume's panoptic output (``fuse``: train ids, volume-local raw ids) with its points'
     source frames and indices (``align``), as the stitcher takes them."""
-    t = store.read_table(seq, "ingest", "frames").to_pydict()
+    t = store.read_table(seq, P["ingest"].table("frames")).to_pydict()
     sizes = np.asarray(t["n_points"], np.int64)
     windows = store.read_manifest(seq, "align").plan["windows"]
-    align, fuse = store.arrays(seq, "align"), store.arrays(seq, "fuse")
+    align, fuse = store.arrays(seq, P["align"].contract), store.arrays(seq, P["fuse"].contract)
     out = []
     for v, w in enumerate(windows):
         src = align.read_item(v, ["source_frame", "source_index"])
@@ -99,7 +102,7 @@ def volume_splits(
     min_speed: float = 0.5,
 ) -> SplitStats:
     """Add ``seq``'s volumes to ``stats`` (needs the ground truth that ``align`` carries)."""
-    align, fuse = store.arrays(seq, "align"), store.arrays(seq, "fuse")
+    align, fuse = store.arrays(seq, P["align"].contract), store.arrays(seq, P["fuse"].contract)
     thing_lut = label_map.is_thing()
     for v in range(align.n_items):
         a = align.read_item(v, ["points", "source_frame", "labels"])

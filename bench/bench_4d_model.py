@@ -1,6 +1,6 @@
 """4D volumes + stitching vs single-scan DS-Net + the tracking baseline, on a trained model.
 
-The model-driven counterpart of ``bench_4d_oracle.py`` (issue 7, "4D vs the tracking baseline on
+The model-driven counterpart of ``bench_4d_oracle.py`` ("4D vs the tracking baseline on
 the same model and sequences"). Every row goes through the real label flow
 (``run_label_flow``: ingest → align → infer → shift → fuse → stitch → score, Prefect included),
 one run store per k under ``--out`` (kept, so ``dsnet dashboard`` can be built from them):

@@ -21,18 +21,19 @@ import time
 from pathlib import Path
 
 import pyarrow as pa
-import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tasks.score_report import write_report
 
 from dsnet_core.synth import generate_log
 from flows.dashboard import build_dashboard
 from flows.dashboard.data import load_run
+from flows.report import write_report
 from storage.run import RunStore
-from tasks.score import state_rel
-from tests.tasks.oracle_stitch import install, score_runs
+from tasks.score import block_state_name
+from tests.tasks.oracle_stitch import ORACLE, score_runs
+
+P = ORACLE  # ingest, the stand-in labels stage, score
 
 
 def _timed(fn, *args, repeat: int = 3, **kw):
@@ -49,15 +50,15 @@ def _long_store(small: str, root: Path, n: int, block: int = 25) -> str:
     """A copy of ``small`` whose sequence 00 holds ``n`` frames (tiled rows, copied block states)."""
     shutil.copytree(small, root)
     store = RunStore(root)
-    rows = store.read_table("00", "score", "frame_metrics").to_pylist()
+    rows = store.read_table("00", P["score"].table("frame_metrics")).to_pylist()
     tiled = [{**rows[i % len(rows)], "index": i, "frame_id": f"{i:06d}"} for i in range(n)]
     store.write_table("00", "score", "frame_metrics", tiled)
     m = store.read_manifest("00", "score")
-    state = store.root.read_bytes(state_rel(store, "00", m.blocks[0][0]))
+    state = store.read_block_bytes("00", "score", block_state_name(m.blocks[0][0]))
     m.blocks = [list(range(i, min(i + block, n))) for i in range(0, n, block)]
     m.n_items = n
     for items in m.blocks:
-        store.root.write_bytes(state_rel(store, "00", items[0]), state)
+        store.write_block_bytes("00", "score", block_state_name(items[0]), state)
     store.write_manifest(m)
     return store.uri
 
@@ -67,14 +68,13 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=4000)
     ap.add_argument("--keep", type=Path, default=None, help="copy the long run's page here")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp, pytest.MonkeyPatch.context() as mp:
+    with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        install(mp)
         generate_log(tmp / "log", sequences=2, frames=6, seed=0, sensor="vlp32")
         (small,) = score_runs(tmp, tmp / "log", {"small": 0.05}, block_size=1, bev=6)
         _, t_small = _timed(build_dashboard, [small], tmp / "small.html")
         long = _long_store(small, tmp / "long", args.frames)
-        _, t_report = _timed(write_report, RunStore(long), bev_frames=0, repeat=1)
+        _, t_report = _timed(write_report, RunStore(long), P, bev_frames=0, repeat=1)
         shutil.copy(
             Path(small) / "tables/score_bev/part-0.parquet", Path(long) / "tables/score_bev/part-0.parquet"
         )

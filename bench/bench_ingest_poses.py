@@ -24,7 +24,10 @@ from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.synth import generate_log
 from dsnet_core.temporal.odometry import trajectory_drift
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tasks.runner import run_stage_plain
+
+P = get_pipeline()  # the DS-Net stages
 
 
 def _ingest(log: Path, store_root: Path, estimate: bool) -> tuple[float, np.ndarray | None]:
@@ -32,9 +35,9 @@ def _ingest(log: Path, store_root: Path, estimate: bool) -> tuple[float, np.ndar
     run = {"data": str(log), "stages": {"ingest": {"estimate_poses": estimate}}}
     store.write_run_config("bench", run)
     t0 = time.perf_counter()
-    run_stage_plain(store, "00", "ingest", run, "bench")
+    run_stage_plain(store, P, "00", "ingest", run, "bench")
     seconds = time.perf_counter() - t0
-    poses = store.read_table("00", "ingest", "frames")["pose"].to_pylist()
+    poses = store.read_table("00", P["ingest"].table("frames"))["pose"].to_pylist()
     return seconds, None if poses[0] is None else np.reshape(poses, (-1, 4, 4))
 
 

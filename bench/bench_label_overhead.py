@@ -20,9 +20,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from tests.helpers.label_request import req
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from flows.server import quiet_prefect_env
+from tasks.methods import get_pipeline
+
+P = get_pipeline()  # the DS-Net stages
 
 quiet_prefect_env()
 
@@ -86,7 +91,7 @@ def main() -> None:
         from flows.label import label_sequence
 
         label_sequence(
-            str(log), str(tmp / "warm"), "00", stages, options, until="align"
+            req(str(log), str(tmp / "warm"), None, stages, options, until="align"), "00"
         )  # warm imports and the API
         times: dict[str, list[float]] = {}
         block_s: dict[str, list[float]] = {}
@@ -98,25 +103,25 @@ def main() -> None:
             run = {"data": str(log), "stages": stages, "options": options}
             store.write_run_config("plain", run)
             t = time.perf_counter()
-            ms = [run_stage_plain(store, "00", stage, run, "plain") for stage in ("ingest", "align")]
+            ms = [run_stage_plain(store, P, "00", stage, run, "plain") for stage in ("ingest", "align")]
             times.setdefault("plain loop (stage runner)", []).append(time.perf_counter() - t)
             block_s.setdefault("plain loop (stage runner)", []).append(sum(m.timings["block_s"] for m in ms))
             for name, workers in (("flow, 1 worker thread", 1), ("flow, 4 worker threads", 4)):
                 fl = label_sequence.with_options(task_runner=ThreadPoolTaskRunner(max_workers=workers))
                 root = tmp / f"{workers}-{rnd}"
                 t = time.perf_counter()
-                summary = fl(str(log), str(root), "00", stages, options, until="align")
+                summary = fl(req(str(log), str(root), None, stages, options, until="align"), "00")
                 times.setdefault(name, []).append(time.perf_counter() - t)
                 assert {r["action"] for r in summary} == {"fresh"}
                 ms = [RunStore(root).read_manifest("00", s) for s in ("ingest", "align")]
                 block_s.setdefault(name, []).append(sum(m.timings["block_s"] for m in ms))
         t = time.perf_counter()
-        summary = label_sequence(str(log), str(root), "00", stages, options, until="align")
+        summary = label_sequence(req(str(log), str(root), None, stages, options, until="align"), "00")
         t_noop_flow = time.perf_counter() - t
         assert {r["action"] for r in summary} == {"skip"}
         t = time.perf_counter()
         for stage in ("ingest", "align"):
-            assert prepare_stage(store, "00", stage, run, "plain").action == "skip"
+            assert prepare_stage(store, P, "00", stage, run, "plain").action == "skip"
         t_noop_store = time.perf_counter() - t
 
     best = {k: min(v) for k, v in times.items()}

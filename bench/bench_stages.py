@@ -3,7 +3,7 @@
 Runs ingest → align → infer → shift → fuse → stitch through the plain runner (no Prefect, one
 torch thread) for each k, and prints seconds per frame for every stage (wall and process CPU
 time: on a shared machine the CPU time is the steadier number), the peak RSS, and stitch's
-share of a frame's time (issue 7 asks that it be a small fraction).
+share of a frame's time (it should be a small fraction).
 
 Without ``--checkpoint`` it builds a RANDOM-WEIGHT ``tiny`` checkpoint: the network's cost is
 the real one, but shifting then runs on whatever the random heads call "thing" (often far
@@ -26,6 +26,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import torch
+
+from tasks.methods import get_pipeline
+
+P = get_pipeline()  # the DS-Net stages
 
 STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
 
@@ -76,7 +80,7 @@ def main() -> None:
         times, cpu = {}, {}
         for stage in STAGES:
             t0, c0 = time.perf_counter(), time.process_time()
-            m = run_stage_plain(store, "00", stage, run, "bench")
+            m = run_stage_plain(store, P, "00", stage, run, "bench")
             times[stage], cpu[stage] = time.perf_counter() - t0, time.process_time() - c0
             if stage == "align":
                 n_frames = store.read_manifest("00", "ingest").n_items

@@ -16,8 +16,8 @@ import numpy as np
 
 from storage.errors import StoreError
 from storage.run import RunStore
+from tasks.base import labels_contract
 from tasks.ingest import FRAMES
-from tasks.methods import run_pipeline
 
 
 @dataclass
@@ -47,23 +47,22 @@ def final_labels(
     Raises:
         StoreError: a requested sequence has no finished labels stage, or none has.
     """
-    pipeline = run_pipeline(store.read_run_config())
-    stage = pipeline[pipeline.labels]
+    contract = labels_contract(store.read_run_config().get("labels_stage", "stitch"))
     found = False
     for seq in sorted(sequences if sequences is not None else store.sequences()):
-        m = store.read_manifest(seq, stage.name)
+        m = store.read_manifest(seq, contract.stage)
         if m is None or m.status != "done":
             if sequences is not None:
-                raise StoreError(store.where(seq, stage.name), f"stage {stage.name!r} is not done")
+                raise StoreError(store.where(seq, contract.stage), f"stage {contract.stage!r} is not done")
             continue
         found = True
         ids = store.read_table(seq, FRAMES)["frame_id"].to_pylist()
-        arrays = store.arrays(seq, stage.contract)
+        arrays = store.arrays(seq, contract)
         done = arrays.done()
         for index, frame_id in enumerate(ids):
             yield seq, frame_id, arrays.read_item(index, ["label"])["label"] if done[index] else None
     if not found:
-        raise StoreError(store.uri, f"no sequence has a finished {stage.name!r} stage to export")
+        raise StoreError(store.uri, f"no sequence has a finished {contract.stage!r} stage to export")
 
 
 def export_semantickitti(

@@ -207,4 +207,4 @@ def check_owner(root: RootFS, rel: str, run_id: str, missing_ok: bool = True) ->
             return
         raise LockLostError(root.url(rel), "this run's lock was taken over by another run")
     if holder.get("run_id") != run_id:
-        raise LockLostError(root.url(rel), f"now held by run {holder.get('run_id')}; not writing")
+        raise LockLostError(root.url(rel), f"taken over by run {holder.get('run_id')}; not writing")

@@ -37,6 +37,19 @@ if TYPE_CHECKING:
 CLASS_MAP = "class_map"
 """The plan key under which a model stage records its checkpoint's class map for downstream stages."""
 
+FRAME_LABEL = ArraySpec(
+    "label",
+    "uint32",
+    doc="raw semantic | sequence-wide instance id << 16, in the frame's original point order",
+)
+"""The final per-frame labels: the array every method's labels stage declares (item = frame,
+indexed like the ingest frame table); export, score and the report read it."""
+
+
+def labels_contract(stage: str) -> StageContract:
+    """The part of a labels stage's contract that readers of final labels rely on."""
+    return StageContract(stage, "frame", (FRAME_LABEL,))
+
 
 class StageConfig(BaseModel):
     """Base of every stage config: frozen, unknown keys rejected."""

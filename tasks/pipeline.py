@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from tasks.base import Stage
+from tasks.base import FRAME_LABEL, Stage
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,8 @@ class Pipeline:
             seen.append(stage.name)
         if self.labels not in seen:
             raise ValueError(f"pipeline {self.name!r}: its labels stage {self.labels!r} is not one of {seen}")
+        if FRAME_LABEL not in self[self.labels].arrays:
+            raise ValueError(f"pipeline {self.name!r}: stage {self.labels!r} declares no FRAME_LABEL array")
 
     def __getitem__(self, name: str) -> Stage:
         for stage in self.stages:

@@ -37,8 +37,8 @@ from collections.abc import Iterator
 import numpy as np
 import pyarrow as pa
 
-from storage.contract import ArraySpec, TableSpec
-from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+from storage.contract import TableSpec
+from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
 
 log = logging.getLogger(__name__)
 
@@ -78,13 +78,6 @@ TRACKS = TableSpec(
         ("confidence", "confidence"),
     ),
 )
-
-FRAME_LABEL = ArraySpec(
-    "label",
-    "uint32",
-    doc="raw semantic | sequence-wide instance id << 16, in the frame's original point order",
-)
-"""The per-frame final label array: every method's labels stage declares it (export and score read it)."""
 
 
 class StitchStage(Stage):

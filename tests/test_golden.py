@@ -1,8 +1,8 @@
 """Golden labels: a fixed synthetic log labelled with a small seeded checkpoint made here.
 
-The digests below were recorded before the redesign of the stage interface (issue 13) and must not
-change with refactoring. A change that alters labels on purpose (a new stage version, a generator
-change) may re-record them, in a commit that says why.
+The digests below were recorded before the stage interface was redesigned (stages declaring
+their own arrays) and must not change with refactoring. A change that alters labels on purpose
+(a new stage version, a generator change) may re-record them, in a commit that says why.
 
 What is hashed: every exported ``.label`` file of the run (k = 1 and k = 2), in frame order, and
 the decoded pixels of the report's bird's-eye-view pictures (their PNG bytes may change with the
@@ -17,7 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tasks.methods import get_pipeline
 from tests.model_helpers import make_checkpoint
+
+P = get_pipeline()  # the DS-Net stages
+
 
 # recorded at 962284f (before the redesign)
 GOLDEN = {
@@ -69,7 +73,7 @@ def _label_run(log: Path, ckpt: Path, root: Path, scans: int):
     assert pipeline.names() == list(STAGES)
     store.write_run_config("golden", run)
     for stage in STAGES:
-        run_stage_plain(store, pipeline, "00", stage, run, "golden")
+        run_stage_plain(store, P, pipeline, "00", stage, run, "golden")
     write_report(store, pipeline, bev_frames=3, review_rows=5)
     export_semantickitti(str(root / "run"), root / "pred")
     return store

@@ -3,7 +3,7 @@
 numpy only. Every metric is computed from a frame's *cells* (distinct (gt label, pred label)
 pairs and their point counts, one sort per frame) by streaming accumulators with ``add``,
 ``merge`` and an idempotent ``result``. Modes (:class:`Mode`): ``official`` reproduces the
-public evaluators to 1e-12, quirks included; ``corrected`` fixes the defects METRICS.md lists.
+public evaluators to 1e-12, quirks included; ``corrected`` fixes the defects docs/metrics.md lists.
 
 Entry points:
     PanopticEvaluator               SemanticKITTI raw ``.label`` arrays (or train ids via

@@ -1,6 +1,6 @@
 """LSTQ = sqrt(S_assoc · S_cls): a streaming, mergeable accumulator.
 
-Two association rules share the machinery (see METRICS.md):
+Two association rules share the machinery (see docs/metrics.md):
 
 * ``4dpls`` — the SemanticKITTI 4D benchmark (4D-PLS ``Panoptic4DEval``): class-agnostic ids
   ``v >> 16``; predicted sizes in one table per sequence over predicted classes 1..C-1 (stuff

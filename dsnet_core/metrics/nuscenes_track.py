@@ -1,6 +1,6 @@
 """Panoptic nuScenes tracking metrics: PQ (float32 IoUs), LSTQ variant, PTQ, sPTQ, TQ and PAT.
 
-Semantics follow nuscenes-devkit's ``PanopticTrackingEval`` (METRICS.md, "Panoptic nuScenes"):
+Semantics follow nuscenes-devkit's ``PanopticTrackingEval`` (docs/metrics.md, "Panoptic nuScenes"):
 
 * PQ as ``PanopticEval`` but with float32 per-pair IoUs (as that evaluator computes them);
 * PTQ/sPTQ: per thing class, an *ID switch* is a ground-truth segment matched (IoU > 0.5) in two

@@ -1,7 +1,7 @@
 """PQ / SQ / RQ (per class, things, stuff, PQ†) and mIoU: a streaming, mergeable accumulator.
 
 Semantics are those of the SemanticKITTI ``PanopticEval`` as driven by ``evaluate_panoptic.py``
-(see METRICS.md): segments are keyed by the whole label within a class, a match needs IoU > 0.5,
+(see docs/metrics.md): segments are keyed by the whole label within a class, a match needs IoU > 0.5,
 unmatched segments count when they have ≥ ``min_points`` points, absent classes count 0.
 
 State is ``O(classes²)``: a confusion matrix and per-class tp/fp/fn counts and IoU sums.

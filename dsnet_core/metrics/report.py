@@ -10,7 +10,7 @@ from enum import StrEnum
 class Mode(StrEnum):
     """How faithfully to follow the public evaluators.
 
-    ``official`` reproduces the benchmark code to 1e-12, defects included (see METRICS.md);
+    ``official`` reproduces the benchmark code to 1e-12, defects included (see docs/metrics.md);
     ``corrected`` fixes the documented defects. Every result records its mode.
     """
 
@@ -114,7 +114,7 @@ class EvalResult:
     lstq: LSTQResult
 
     def to_dict(self) -> dict[str, object]:
-        """The JSON object of ``dsnet eval --json`` (keys fixed by issue 3; NaN/inf become null)."""
+        """The JSON object of ``dsnet eval --json`` (a published interface; NaN/inf become null)."""
         p, t = self.panoptic, self.lstq
         out: dict[str, object] = {"mode": str(self.mode)}
         for key in ("pq", "pq_dagger", "sq", "rq", "pq_things", "sq_things", "rq_things"):

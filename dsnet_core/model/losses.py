@@ -1,5 +1,5 @@
 """Losses: weighted cross-entropy + Lovász-softmax for semantics (class 0 ignored), and the offset
-loss of DS-Net (DSNET.md eq. 1) towards each instance's axis-aligned tight-box centre."""
+loss of DS-Net (docs/algorithm.md eq. 1) towards each instance's axis-aligned tight-box centre."""
 
 from __future__ import annotations
 
@@ -75,7 +75,7 @@ def instance_centres(xyz: torch.Tensor, instance_keys: torch.Tensor, valid: torc
     """Centre of each point's instance: the middle of the instance's axis-aligned tight box.
 
     Pass the points of all scans of a 4D volume together (aligned to the reference frame) and
-    the centre is that of the instance over all the volume's scans (DSNET.md eq. 5).
+    the centre is that of the instance over all the volume's scans (docs/algorithm.md eq. 5).
 
     Args:
         xyz: float ``(N, 3)`` metres.
@@ -100,7 +100,7 @@ def instance_centres(xyz: torch.Tensor, instance_keys: torch.Tensor, valid: torc
 def offset_loss(
     offsets: torch.Tensor, xyz: torch.Tensor, centres: torch.Tensor, valid: torch.Tensor
 ) -> torch.Tensor:
-    """DSNET.md eq. 1: mean over thing points of ‖O − (C_gt − P)‖₁.
+    """docs/algorithm.md eq. 1: mean over thing points of ‖O − (C_gt − P)‖₁.
 
     Args:
         offsets: float ``(N, 3)`` predicted; xyz: ``(N, 3)`` points; centres: ``(N, 3)`` targets;

@@ -49,7 +49,7 @@ def volume_refs(reader: LogReader, sequences: list[str], scans: int = 1) -> list
 
 
 def load_sample(reader: LogReader, refs: list[FrameRef], label_map: LabelMap) -> Sample:
-    """Read (and for k > 1 align into the last scan's frame, DSNET.md eq. 7) the scans of ``refs``."""
+    """Read the scans of ``refs`` (for k > 1 aligned into the last scan's frame, docs/algorithm.md eq. 7)."""
     target = refs[-1]
     is_thing = label_map.is_thing()
     pose_t = reader.pose(target) if len(refs) > 1 else None

@@ -71,10 +71,12 @@ def config_hash(run: dict[str, Any]) -> str:
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
-def _model_plan(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> dict[str, Any]:
-    """The plan of the first finished stage that recorded the model's class map (empty: none)."""
+def model_plan(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> dict[str, Any]:
+    """The plan of the first stage (the labels stage or one upstream of it) that recorded the
+    model's class map: it holds ``model_card`` (``<checkpoint folder>@<weights sha256[:12]>``) and
+    the class map. Empty when no model stage ran."""
     for seq in sequences:
-        for stage in pipeline.upstream_closure(pipeline.labels):
+        for stage in [*pipeline.upstream_closure(pipeline.labels), pipeline.labels]:
             m = store.read_manifest(seq, stage)
             if m is not None and CLASS_MAP in m.plan:
                 return m.plan
@@ -133,7 +135,7 @@ def write_report(
         }
         for k in spec.include
     ]
-    model = _model_plan(store, pipeline, sequences)
+    model = model_plan(store, pipeline, sequences)
     run_row = {
         "run_id": str(run.get("run_id", "")),
         "root": store.uri,

@@ -9,6 +9,7 @@ import numpy as np
 
 from dsnet_core.labels import LabelMap
 from storage.run import RunStore
+from tasks.base import labels_contract
 from tasks.pipeline import Pipeline
 
 
@@ -44,7 +45,7 @@ def bev_rows(
     if n <= 0:
         return []
     reader = open_log(run["data"], run.get("format", "auto"), run.get("reader_options"))
-    labels = pipeline[pipeline.labels].contract
+    labels = labels_contract(pipeline.labels)
     rows = []
     for rank, (seq, index, fid, pq, npts) in enumerate(worst_frames(frames, n)):
         ref = reader.frames(seq)[index]

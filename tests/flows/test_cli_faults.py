@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tasks.runner import run_stage_plain, stage_state
 from tests.flows.conftest import REPO, cli
 from tests.logs import make_log
+
+P = get_pipeline()  # the DS-Net stages
 
 ARGS = ("--scans", "3", "--stride", "1", "--block-size", "1", "--until", "align")  # the store stages only
 N_FRAMES = 24
@@ -35,7 +38,7 @@ def reference(big_log, tmp_path_factory):
     run = {"data": str(big_log), "stages": {"align": {"scans": 3, "stride": 1}}, "options": {"block_size": 1}}
     store.write_run_config("ref", run)
     for stage in ("ingest", "align"):
-        run_stage_plain(store, "00", stage, run, "ref")
+        run_stage_plain(store, P, "00", stage, run, "ref")
     return store
 
 
@@ -55,13 +58,14 @@ def _assert_same_as_reference(store: RunStore, reference: RunStore) -> None:
     for stage in ("ingest", "align"):
         assert store.read_manifest("00", stage).status == "done"
         assert store.read_manifest("00", stage).fingerprint != ""
-    a, b = store.arrays("00", "align"), reference.arrays("00", "align")
+    a, b = store.arrays("00", P["align"].contract), reference.arrays("00", P["align"].contract)
     assert a.n_items == b.n_items == N_VOLUMES and a.done().all()
     assert np.array_equal(a.n_points(), b.n_points())
     for name in ("points", "source_frame", "source_index", "labels"):
         assert np.array_equal(a.group[name][:], b.group[name][:]), name
     for stage, table in (("ingest", "frames"), ("align", "volumes")):
-        assert store.read_table("00", stage, table).equals(reference.read_table("00", stage, table))
+        spec = P[stage].table(table)
+        assert store.read_table("00", spec).equals(reference.read_table("00", spec))
 
 
 def _result_files(store: RunStore) -> list[str]:
@@ -102,7 +106,7 @@ def test_sigkill_in_align_then_resume(backend, big_log, reference, cli_env, tmp_
     finally:
         if proc.poll() is None:
             proc.kill()
-    state, _, n_done = stage_state(store, "00", "align")
+    state, _, n_done = stage_state(store, P, "00", "align")
     assert state == "partial" and 3 <= n_done < N_VOLUMES, (state, n_done)
     assert store.read_manifest("00", "ingest").status == "done"
     visible = _result_files(store)
@@ -229,4 +233,4 @@ def test_local_dask_cluster(cli_env, tmp_path):
     store = RunStore(root)
     for seq in ("00", "01"):
         assert store.read_manifest(seq, "align").status == "done"
-        assert store.arrays(seq, "align").done().all()
+        assert store.arrays(seq, P["align"].contract).done().all()

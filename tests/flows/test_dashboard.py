@@ -14,15 +14,13 @@ from flows.dashboard import build_dashboard
 from flows.dashboard.sections import HEADLINE
 from tests.flows.browser import Browser
 from tests.flows.conftest import REPO, cli
-from tests.tasks.oracle_stitch import install, score_runs
+from tests.tasks.oracle_stitch import score_runs
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory, synth_log):
     root = tmp_path_factory.mktemp("dash")
-    with pytest.MonkeyPatch.context() as mp:
-        install(mp)
-        uris = score_runs(root, synth_log, {"runA": 0.05, "runB": 0.15})
+    uris = score_runs(root, synth_log, {"runA": 0.05, "runB": 0.15})
     page = build_dashboard(uris, root / "out" / "dashboard.html")
     return uris, page
 

@@ -9,7 +9,11 @@ import numpy as np
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.temporal.odometry import trajectory_drift
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tests.flows.conftest import REPO, cli
+
+P = get_pipeline()  # the DS-Net stages
+
 
 ARGS = ("--scans", "2", "--until", "align")
 
@@ -38,7 +42,7 @@ def test_label_estimate_poses(synth_log, cli_env, tmp_path):
     reader = SemanticKittiReader(synth_log)
     for seq, source in (("00", "estimated"), ("01", "log")):
         assert store.read_manifest(seq, "align").status == "done"
-        t = store.read_table(seq, "ingest", "frames").to_pydict()
+        t = store.read_table(seq, P["ingest"].table("frames")).to_pydict()
         assert t["pose_source"] == [source] * 6
         poses = np.stack([np.reshape(p, (4, 4)) for p in t["pose"]])
         truth = np.stack([reader.pose(f) for f in reader.frames(seq)])
@@ -52,6 +56,7 @@ def test_label_estimate_poses(synth_log, cli_env, tmp_path):
 def test_serve_pending_follows_the_flag(synth_log, tmp_path):
     from flows.watch import pending_sequences
     from tasks.runner import run_stage_plain
+    from tests.helpers.label_request import req
 
     log = tmp_path / "log"
     shutil.copytree(synth_log, log)
@@ -62,7 +67,7 @@ def test_serve_pending_follows_the_flag(synth_log, tmp_path):
     run = {"data": str(log), "stages": stages}
     store.write_run_config("r1", run)
     for seq in ("00", "01"):
-        run_stage_plain(store, seq, "ingest", run, "r1")
-    assert pending_sequences(str(log), store.uri, stages, until="ingest") == []
+        run_stage_plain(store, P, seq, "ingest", run, "r1")
+    assert pending_sequences(req(log, store.uri, None, stages, until="ingest")) == []
     # the flag is part of ingest's fingerprint: a tick without it relabels every sequence
-    assert pending_sequences(str(log), store.uri, None, until="ingest") == ["00", "01"]
+    assert pending_sequences(req(log, store.uri, until="ingest")) == ["00", "01"]

@@ -16,7 +16,7 @@ from dsnet_core.metrics import NuScenesPanopticEvaluator, read_panoptic_npz
 from flows.export_nuscenes import export_nuscenes
 from tests.dsnet_core.metrics.nuscenes_peer import load_nuscenes_evaluators
 from tests.flows.conftest import REPO, cli
-from tests.tasks.oracle_stitch import install, score_runs
+from tests.tasks.oracle_stitch import score_runs
 
 try:
     PanopticEval = load_nuscenes_evaluators()[0]
@@ -46,10 +46,8 @@ def test_encoder_keeps_instances_apart_and_stable_across_frames():
 
 
 def test_export_reads_back_and_scores_like_the_devkit(synth_log, tmp_path):
-    with pytest.MonkeyPatch.context() as mp:
-        install(mp)
-        (uri,) = score_runs(tmp_path, synth_log, {"run": 0.05}, bev=0)
-        result = export_nuscenes(uri, tmp_path / "nusc")
+    (uri,) = score_runs(tmp_path, synth_log, {"run": 0.05}, bev=0)
+    result = export_nuscenes(uri, tmp_path / "nusc")
     assert json.loads((tmp_path / "nusc/tokens.json").read_text()) == result.tokens
     cmd = cli("export", uri, "--out", str(tmp_path / "cli"), "--format", "nuscenes", "--sequences", "01")
     res = subprocess.run(

@@ -13,8 +13,12 @@ import pytest
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tests.flows.conftest import REPO
+from tests.helpers.label_request import req
 from tests.model_helpers import KILL_STITCH_AT_THIRD_VOLUME, make_checkpoint
+
+P = get_pipeline()  # the DS-Net stages
 
 LM = load_label_map("semantic-kitti")
 MODEL = ("infer", "shift", "fuse", "stitch")
@@ -37,7 +41,7 @@ def actions(summary):
 
 
 def frame_labels(store, seq):
-    arrays = store.arrays(seq, "stitch")
+    arrays = store.arrays(seq, P["stitch"].contract)
     return [arrays.read_item(i)["label"] for i in range(arrays.n_items)]
 
 
@@ -46,10 +50,10 @@ def check_split_back(store, log, seq):
     reader = SemanticKittiReader(log)
     labels = frame_labels(store, seq)
     refs = reader.frames(seq)
-    assert len(labels) == len(refs) and store.arrays(seq, "stitch").done().all()
+    assert len(labels) == len(refs) and store.arrays(seq, P["stitch"].contract).done().all()
     covered = {}
-    for v in range(store.arrays(seq, "align").n_items):
-        src = store.arrays(seq, "align").read_item(v, ["source_frame", "source_index"])
+    for v in range(store.arrays(seq, P["align"].contract).n_items):
+        src = store.arrays(seq, P["align"].contract).read_item(v, ["source_frame", "source_index"])
         for f in np.unique(src["source_frame"]).tolist():
             covered.setdefault(f, np.sort(src["source_index"][src["source_frame"] == f]))
     for f, ref in enumerate(refs):
@@ -65,7 +69,7 @@ def run4d(prefect_api_url, synth_log, ckpt, tmp_path_factory):
     from flows.label import label_dataset
 
     root = tmp_path_factory.mktemp("run4d") / "run"
-    summary = label_dataset(str(synth_log), str(root), None, stages(ckpt, 2), {"block_size": 3})
+    summary = label_dataset(req(str(synth_log), str(root), None, stages(ckpt, 2), {"block_size": 3}))
     store = RunStore(root)
     return root, summary, {s: frame_labels(store, s) for s in SEQS}
 
@@ -85,10 +89,10 @@ def test_label_4d_reruns_and_reprocesses_only_what_changed(run4d, synth_log, ckp
         )
         assert len(store.read_manifest(s, "stitch").blocks) == 1  # stitching is sequential
 
-    again = label_dataset(str(synth_log), str(root), None, stages(ckpt, 2), {"block_size": 3})
+    again = label_dataset(req(str(synth_log), str(root), None, stages(ckpt, 2), {"block_size": 3}))
     assert set(actions(again).values()) == {"skip"} and all(r["blocks_run"] == 0 for r in again)
 
-    dbscan = label_dataset(str(synth_log), str(root), ["00"], stages(ckpt, 2, {"kind": "dbscan"}), {})
+    dbscan = label_dataset(req(str(synth_log), str(root), ["00"], stages(ckpt, 2, {"kind": "dbscan"}), {}))
     acts = actions(dbscan)
     assert [acts[("00", st)] for st in ALL] == ["skip"] * 3 + ["fresh"] * 4
     assert not all(np.array_equal(a, b) for a, b in zip(frame_labels(store, "00"), labels["00"], strict=True))
@@ -97,7 +101,9 @@ def test_label_4d_reruns_and_reprocesses_only_what_changed(run4d, synth_log, ckp
     assert store.read_manifest("00", "shift").config["clusterer"]["kind"] == "dbscan"
 
     other = make_checkpoint(tmp_path / "other", seed=1)
-    new_model = label_dataset(str(synth_log), str(root), ["00"], stages(other, 2, {"kind": "dbscan"}), {})
+    new_model = label_dataset(
+        req(str(synth_log), str(root), ["00"], stages(other, 2, {"kind": "dbscan"}), {})
+    )
     acts = actions(new_model)
     assert [acts[("00", st)] for st in ALL] == ["skip"] * 2 + ["fresh"] * 5
 
@@ -110,7 +116,7 @@ def test_label_3d_ids_from_one_counter_export_and_eval(prefect_api_url, synth_lo
     from flows.label import label_dataset
 
     root = str(tmp_path / "run")
-    summary = label_dataset(str(synth_log), root, None, stages(ckpt, 1), {"block_size": 4})
+    summary = label_dataset(req(str(synth_log), root, None, stages(ckpt, 1), {"block_size": 4}))
     assert actions(summary) == {(s, st): "fresh" for s in SEQS for st in ALL}
     store = RunStore(root)
     for s in SEQS:
@@ -118,7 +124,7 @@ def test_label_3d_ids_from_one_counter_export_and_eval(prefect_api_url, synth_lo
         per_frame = [set(np.unique(lab >> 16).tolist()) - {0} for lab in labels]
         every = sorted(i for ids in per_frame for i in ids)
         assert every == list(range(1, len(every) + 1))  # k = 1: fresh ids, one counter, never reused
-        tracks = store.read_table(s, "stitch", "tracks").to_pydict()
+        tracks = store.read_table(s, P["stitch"].table("tracks")).to_pydict()
         assert tracks["id"] == every and all(n == 1 for n in tracks["n_frames"])
 
     out = tmp_path / "export"
@@ -126,7 +132,7 @@ def test_label_3d_ids_from_one_counter_export_and_eval(prefect_api_url, synth_lo
     assert exported.frames == {"00": 6, "01": 6} and exported.missing == {"00": [], "01": []}
     ref = SemanticKittiReader(synth_log).frames("01")[4]
     written = np.fromfile(out / "sequences/01/predictions" / f"{ref.frame_id}.label", dtype=np.uint32)
-    assert np.array_equal(written, store.arrays("01", "stitch").read_item(4)["label"])
+    assert np.array_equal(written, store.arrays("01", P["stitch"].contract).read_item(4)["label"])
 
     runner = CliRunner()
     res = runner.invoke(
@@ -180,10 +186,10 @@ def test_4d_run_killed_during_stitch_resumes_to_identical_labels(run4d, synth_lo
     store = RunStore(root)
     assert store.read_manifest("00", "stitch").status == "running"
     # volumes 0 and 1 (frames 0, 1, 2) were written and their state saved before the kill
-    assert store.arrays("00", "stitch").done().tolist() == [True] * 3 + [False] * 3
+    assert store.arrays("00", P["stitch"].contract).done().tolist() == [True] * 3 + [False] * 3
     assert store.root.read_json("sequences/00/stitch/state.json")["volume"] == 1
 
-    resumed = label_dataset(str(synth_log), str(root), ["00"], stages(ckpt, 2), {})
+    resumed = label_dataset(req(str(synth_log), str(root), ["00"], stages(ckpt, 2), {}))
     acts = actions(resumed)
     assert acts[("00", "stitch")] == "resume" and all(acts[("00", s)] == "skip" for s in ALL[:-2])
     m = store.read_manifest("00", "stitch")
@@ -191,5 +197,5 @@ def test_4d_run_killed_during_stitch_resumes_to_identical_labels(run4d, synth_lo
     assert not store.root.exists("sequences/00/stitch/state.json")
     for a, b in zip(check_split_back(store, synth_log, "00"), labels["00"], strict=True):
         assert np.array_equal(a, b)  # identical to the uninterrupted run
-    tracks = RunStore(src).read_table("00", "stitch", "tracks")
-    assert store.read_table("00", "stitch", "tracks").equals(tracks)
+    tracks = RunStore(src).read_table("00", P["stitch"].table("tracks"))
+    assert store.read_table("00", P["stitch"].table("tracks")).equals(tracks)

@@ -9,14 +9,18 @@ import math
 import numpy as np
 import pytest
 from prefect.artifacts import Artifact
-from tasks.score_report import read_report_table
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
-from storage.contract import HEADLINE_KEYS
+from flows.report import HEADLINE_KEYS, read_report_table
 from storage.run import RunStore
+from tasks.methods import get_pipeline
+from tests.helpers.label_request import req
 from tests.model_helpers import make_checkpoint
+
+P = get_pipeline()  # the DS-Net stages
+
 
 FAST_SHIFT = {"kind": "dynamic_shift", "n_seeds": 300, "bandwidths": [0.2, 1.8, 3.4]}
 
@@ -28,7 +32,7 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
     ckpt = make_checkpoint(tmp_path / "tiny", seed=0)
     stages = {"align": {"scans": 1}, "infer": {"checkpoint": str(ckpt)}, "shift": {"clusterer": FAST_SHIFT}}
     root = tmp_path / "run"
-    summary = label_dataset(str(synth_log), str(root), None, stages, {"block_size": 4})
+    summary = label_dataset(req(str(synth_log), str(root), None, stages, {"block_size": 4}))
     assert {(r["sequence"], r["action"]) for r in summary if r["stage"] == "score"} == {
         ("00", "fresh"),
         ("01", "fresh"),
@@ -37,7 +41,7 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
     reader = SemanticKittiReader(synth_log)
     ref = PanopticEvaluator(load_label_map("semantic-kitti"))
     for seq in ("00", "01"):
-        arrays = store.arrays(seq, "stitch")
+        arrays = store.arrays(seq, P["stitch"].contract)
         for i, frame in enumerate(reader.frames(seq)):
             ref.add(reader.labels(frame), arrays.read_item(i)["label"], frame.frame_id, seq)
     want = ref.result()
@@ -54,7 +58,7 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
     assert (root / "dashboard.html").stat().st_size > 10_000
     md = Artifact.get(f"score-summary-{synth_log.name.replace('_', '-')}")
     assert f"Dashboard: `{root / 'dashboard.html'}`" in md.data
-    again = label_dataset(str(synth_log), str(root), None, stages, {"block_size": 4})
+    again = label_dataset(req(str(synth_log), str(root), None, stages, {"block_size": 4}))
     assert {r["action"] for r in again if r["stage"] == "score"} == {"skip"}
     frames = np.array(read_report_table(store, "score_sequences")["frames"].to_pylist())
     assert frames.tolist() == [6, 6]

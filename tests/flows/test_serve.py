@@ -7,27 +7,24 @@ import os
 import subprocess
 import time
 
-import pytest
 from prefect import flow
 from prefect.artifacts import Artifact
-from tasks.score_report import read_report_table
 
 from flows.publish import publish
+from flows.report import read_report_table
 from storage.run import RunStore
 from tests.flows.conftest import REPO, cli
-from tests.tasks.oracle_stitch import install, score_runs
+from tests.tasks.oracle_stitch import ORACLE, score_runs
 
 
 def test_publish_writes_dashboard_and_artifacts_with_stable_keys(prefect_api_url, synth_log, tmp_path):
     @flow(name="publish-test", persist_result=False)
     def publish_flow(root: str) -> dict:
-        return publish(root, "Synth KITTI")
+        return publish(root, "Synth KITTI", pipeline=ORACLE)
 
-    with pytest.MonkeyPatch.context() as mp:
-        install(mp)
-        (uri,) = score_runs(tmp_path, synth_log, {"run": 0.05}, sequences=("00",), block_size=6, bev=1)
-        first = publish_flow(uri)
-        again = publish_flow(uri)  # a second run: the keys stay, the UI shows the latest
+    (uri,) = score_runs(tmp_path, synth_log, {"run": 0.05}, sequences=("00",), block_size=6, bev=1)
+    first = publish_flow(uri)
+    again = publish_flow(uri)  # a second run: the keys stay, the UI shows the latest
     assert first["scored"] and again["dashboard"] == first["dashboard"] == f"{uri}/dashboard.html"
     assert os.path.getsize(first["dashboard"]) > 10_000
     run = read_report_table(RunStore(uri), "score_run").to_pylist()[0]
@@ -116,10 +113,8 @@ def test_report_and_dashboard_on_an_s3_store(s3_endpoint, synth_log):
     import fsspec
 
     root = "s3://dsnet-test/dash"
-    with pytest.MonkeyPatch.context() as mp:
-        install(mp)
-        (uri,) = score_runs(root, synth_log, {"run": 0.05}, sequences=("00",), block_size=6, bev=1)
-        out = publish(uri, "s3 synth", artifacts=False)
+    (uri,) = score_runs(root, synth_log, {"run": 0.05}, sequences=("00",), block_size=6, bev=1)
+    out = publish(uri, "s3 synth", artifacts=False, pipeline=ORACLE)
     assert out["scored"] and out["dashboard"] == f"{uri}/dashboard.html"
     with fsspec.open(out["dashboard"], "rb") as f:
         page = f.read().decode()

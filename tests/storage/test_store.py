@@ -11,13 +11,29 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from storage.contract import CONTRACTS, FRAMES
+from storage.contract import ArraySpec, StageContract, TableSpec
 from storage.errors import ContractError, LockHeldError, LockLostError, StoreError
 from storage.fs import RootFS
 from storage.locks import LockSet, Owner
 from storage.manifest import Manifest, fingerprint
 from storage.run import RunStore
 from storage.tables import read_partition, read_table, to_table, write_partition
+
+# the store knows no stage: these tests declare their own arrays and tables, as a stage does
+FRAMES = TableSpec(
+    "frames", pa.schema([("index", pa.int32()), ("frame_id", pa.string()), ("n_points", pa.int64())])
+)
+VOLUME = StageContract(
+    "align",
+    item="volume",
+    arrays=(
+        ArraySpec("points", "float32", trailing=(4,)),
+        ArraySpec("source_frame", "int32"),
+        ArraySpec("source_index", "int32"),
+        ArraySpec("labels", "uint32", optional=True),
+        ArraySpec("probs", "uint8", trailing=("classes",), optional=True),
+    ),
+)
 
 
 def test_fingerprint_chains_every_input():
@@ -94,12 +110,12 @@ def test_parquet_partition_is_string_and_atomic(tmp_path):
 
 def test_padded_arrays_round_trip_and_done_last(tmp_path):
     store = RunStore(tmp_path)
-    arrays = store.create_arrays("00", "align", n_items=3, max_points=10)
+    arrays = store.create_arrays("00", VOLUME, n_items=3, max_points=10, omit=("probs",))
     assert arrays.names == ["points", "source_frame", "source_index", "labels"]
     pts = np.arange(24, dtype=np.float32).reshape(6, 4)
     vals = {"points": pts, "source_frame": np.zeros(6), "source_index": np.arange(6), "labels": np.ones(6)}
     arrays.write_item(1, vals, 6)
-    back = store.arrays("00", "align")
+    back = store.arrays("00", VOLUME)
     assert back.done().tolist() == [False, True, False]
     got = back.read_item(1)
     assert np.array_equal(got["points"], pts) and got["source_index"].dtype == np.int32
@@ -111,8 +127,21 @@ def test_padded_arrays_round_trip_and_done_last(tmp_path):
     with pytest.raises(ValueError, match=r"'points': shape \(6, 3\)"):
         arrays.write_item(0, {**vals, "points": pts[:, :3]}, 6)
     with pytest.raises(ContractError, match="required by the contract"):
-        store.create_arrays("00", "align", 1, 1, omit=("points",))
-    assert CONTRACTS["align"].array("labels").optional
+        store.create_arrays("00", VOLUME, 1, 1, omit=("points",))
+    assert VOLUME.array("labels").optional
+
+
+def test_named_trailing_sizes_come_from_the_plan(tmp_path):
+    store = RunStore(tmp_path)
+    with pytest.raises(ContractError, match="needs the size 'classes'"):
+        store.create_arrays("00", VOLUME, 1, 5)
+    arrays = store.create_arrays("00", VOLUME, 2, 5, omit=("labels",), dims={"classes": 7})
+    assert arrays.group["probs"].shape == (2, 5, 7) and arrays.group.attrs["dims"] == {"classes": 7}
+    vals = {"points": np.zeros((3, 4)), "source_frame": np.zeros(3), "source_index": np.zeros(3)}
+    arrays.write_item(0, {**vals, "probs": np.ones((3, 7))}, 3)
+    assert store.arrays("00", VOLUME).read_item(0, ["probs"])["probs"].shape == (3, 7)
+    with pytest.raises(ValueError, match=r"'probs': shape \(3, 6\)"):
+        arrays.write_item(1, {**vals, "probs": np.ones((3, 6))}, 3)
 
 
 def test_lock_names_holder_and_waits(tmp_path):

@@ -2,10 +2,10 @@
 
 import pytest
 
-from tests.tasks.oracle_stitch import install
+from tests.tasks.oracle_stitch import ORACLE
 
 
 @pytest.fixture
-def oracle_stages(monkeypatch):
-    """The stand-in stitch stage (perturbed ground truth) and the score stage, for one test."""
-    return install(monkeypatch)
+def oracle_stages():
+    """The oracle method: ingest, the stand-in labels stage (perturbed ground truth) and score."""
+    return ORACLE

@@ -1,10 +1,11 @@
-"""A stand-in ``stitch`` stage for scoring tests: perturbed ground truth through the real store.
+"""A stand-in labels stage for scoring tests: perturbed ground truth through the real store.
 
-It writes the stitch contract the score stage reads (item = frame, per-point ``label`` uint32 in
-the scan's point order) and a ``tracks`` table with a confidence per instance, through the real
-runner (zarr arrays, block fragments, parquet, manifests). The perturbation is deterministic:
-per frame a seeded share of points gets another class, and in odd frames one instance is split
-in two ids.
+It declares the final-label array the score stage reads (item = frame, per-point ``label`` uint32
+in the scan's point order) and a ``tracks`` table with a confidence per instance, and runs through
+the real runner (zarr arrays, block fragments, parquet, manifests). The perturbation is
+deterministic: per frame a seeded share of points gets another class, and in odd frames one
+instance is split in two ids. :data:`ORACLE` is a method made of ingest, this stage and score:
+tests pass it where a pipeline is taken, nothing is patched.
 """
 
 from __future__ import annotations
@@ -13,16 +14,17 @@ from collections.abc import Iterator
 
 import numpy as np
 import pyarrow as pa
-import pytest
 
-from dsnet_core.labels import load_label_map
-from storage.contract import CONTRACTS, ArraySpec, StageContract, TableSpec
-from tasks import registry
-from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+from dsnet_core.labels import class_map_of, load_label_map
+from storage.contract import TableSpec
+from tasks.base import CLASS_MAP, FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.ingest import IngestStage
+from tasks.pipeline import Pipeline
 from tasks.score import ScoreStage
 
-TRACKS = TableSpec(  # the columns of the real track table that the review queue reads
-    "tracks",
+LM = load_label_map("semantic-kitti")
+TRACKS = TableSpec(  # the review queue reads the columns declared in ``roles``
+    "oracle_tracks",
     pa.schema(
         [
             ("id", pa.int32()),
@@ -32,13 +34,9 @@ TRACKS = TableSpec(  # the columns of the real track table that the review queue
             ("confidence", pa.float64()),
         ]
     ),
-)
-CONTRACT = StageContract(
-    "stitch",
-    item="frame",
-    arrays=(ArraySpec("label", "uint32", doc="raw semantic | instance << 16, scan point order"),),
-    tables=(TRACKS,),
-)
+    roles=(("id", "id"), ("class_id", "class_id"), ("points", "n_points"), ("item", "first_frame"),
+           ("confidence", "confidence")),
+)  # fmt: skip
 
 
 class OracleStitchConfig(StageConfig):
@@ -62,14 +60,17 @@ def perturb(labels: np.ndarray, index: int, noise: float, seed: int) -> np.ndarr
 
 
 class OracleStitch(Stage):
-    name = "stitch"
+    name = "oracle"
     upstream = ("ingest",)
     version = "oracle-1"
     Config = OracleStitchConfig
+    item = "frame"
+    arrays = (FRAME_LABEL,)
+    tables = (TRACKS,)
 
     def plan(self, ctx: StageContext) -> Plan:
         n = ctx.frames["n_points"].to_pylist()
-        return Plan(n_items=len(n), max_points=max(n, default=0))
+        return Plan(n_items=len(n), max_points=max(n, default=0), meta={CLASS_MAP: class_map_of(LM)})
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         reader = ctx.reader
@@ -80,11 +81,10 @@ class OracleStitch(Stage):
                 gt = np.zeros(reader.scan(refs[i]).shape[0], dtype=np.uint32)
             pred = perturb(gt, i, ctx.config.noise, ctx.config.seed)
             inst = pred >> 16
-            train = load_label_map("semantic-kitti").learning_map
             tracks = [
                 {
                     "id": int(t),
-                    "class_id": train[int(pred[inst == t][0] & 0xFFFF)],
+                    "class_id": LM.learning_map[int(pred[inst == t][0] & 0xFFFF)],
                     "first_frame": i,
                     "n_points": int((inst == t).sum()),
                     "confidence": round(0.2 + 0.8 * ((int(t) * 37 + i) % 100) / 100, 3),
@@ -95,24 +95,18 @@ class OracleStitch(Stage):
                 i,
                 arrays={"label": pred},
                 n_points=int(pred.size),
-                rows={"tracks": tracks},
+                rows={"oracle_tracks": tracks},
                 counts={"frames": 1, "points": int(pred.size)},
             )
 
 
-def install(monkeypatch: pytest.MonkeyPatch) -> dict:
-    """Register the stand-in stitch stage (and score after it) until ``monkeypatch`` undoes it."""
-    monkeypatch.setitem(CONTRACTS, "stitch", CONTRACT)
-    monkeypatch.setitem(registry.STAGES, "stitch", OracleStitch())
-    monkeypatch.setitem(registry.STAGES, "score", ScoreStage())
-    return registry.STAGES
+ORACLE = Pipeline("oracle", (IngestStage(), OracleStitch(), ScoreStage(labels="oracle")), labels="oracle")
 
 
 def score_runs(root, log, runs: dict[str, float], sequences=("00", "01"), block_size: int = 4, bev: int = 3):
-    """Label (oracle stitch with the given noise) and score one run store per entry of ``runs``
-    (``{name: noise}``) under ``root``; returns their URIs. Call with :func:`install` in effect."""
-    from tasks.score_report import write_report
-
+    """Label (oracle stage with the given noise) and score one run store per entry of ``runs``
+    (``{name: noise}``) under ``root``; returns their URIs."""
+    from flows.report import write_report
     from storage.run import RunStore
     from tasks.runner import run_stage_plain
 
@@ -121,13 +115,14 @@ def score_runs(root, log, runs: dict[str, float], sequences=("00", "01"), block_
         store = RunStore(f"{root}/{name}")
         run = {
             "data": str(log),
-            "stages": {"stitch": {"noise": noise}},
+            **ORACLE.record(),
+            "stages": {"oracle": {"noise": noise}},
             "options": {"block_size": block_size},
         }
         store.write_run_config(name, run)
         for seq in sequences:
-            for stage in ("ingest", "stitch", "score"):
-                run_stage_plain(store, seq, stage, run, name)
-        write_report(store, bev_frames=bev, review_rows=8)
+            for stage in ORACLE.names():
+                run_stage_plain(store, ORACLE, seq, stage, run, name)
+        write_report(store, ORACLE, bev_frames=bev, review_rows=8)
         out.append(store.uri)
     return out

@@ -12,7 +12,11 @@ from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.synth import generate_log
 from dsnet_core.temporal.odometry import trajectory_drift
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tasks.runner import run_stage_plain
+
+P = get_pipeline()  # the DS-Net stages
+
 
 N_FRAMES = 20
 CAR_RAW = 10  # parked cars
@@ -43,7 +47,7 @@ def _run(log, estimate, scans=2, **options):
 
 def _label(store, run, run_id, stages=("ingest", "align")):
     store.write_run_config(run_id, run)
-    return [run_stage_plain(store, "00", s, run, run_id) for s in stages]
+    return [run_stage_plain(store, P, "00", s, run, run_id) for s in stages]
 
 
 def _poses(table) -> np.ndarray:
@@ -51,7 +55,7 @@ def _poses(table) -> np.ndarray:
 
 
 def _sorted_volume(store, item):
-    vol = store.arrays("00", "align").read_item(item)
+    vol = store.arrays("00", P["align"].contract).read_item(item)
     order = np.lexsort((vol["source_index"], vol["source_frame"]))
     return {k: v[order] for k, v in vol.items()}
 
@@ -61,7 +65,7 @@ def test_estimated_poses_drift_and_aligned_parked_cars(logs, tmp_path):
     est_store, true_store = RunStore(tmp_path / "est"), RunStore(tmp_path / "true")
     ingest, align = _label(est_store, _run(withheld, True), "r1")
     assert len(ingest.blocks) == 1 and ingest.plan["pose_source"] == "estimated"  # odometry: one block
-    t = est_store.read_table("00", "ingest", "frames").to_pydict()
+    t = est_store.read_table("00", P["ingest"].table("frames")).to_pydict()
     assert t["pose_source"] == ["estimated"] * N_FRAMES and set(t["status"]) == {"ok"}
     est = _poses(t)
     np.testing.assert_allclose(est[0], np.eye(4), atol=1e-12)  # LiDAR frame, Tr = identity
@@ -77,7 +81,7 @@ def test_estimated_poses_drift_and_aligned_parked_cars(logs, tmp_path):
     # the flag on a log with poses changes nothing: the log's poses win, blocks stay as configured
     t_ingest, t_align = _label(true_store, _run(full, True), "r1")
     assert len(t_ingest.blocks) == -(-N_FRAMES // 3) and t_ingest.plan["pose_source"] == "log"
-    tt = true_store.read_table("00", "ingest", "frames").to_pydict()
+    tt = true_store.read_table("00", P["ingest"].table("frames")).to_pydict()
     assert tt["pose_source"] == ["log"] * N_FRAMES
     np.testing.assert_allclose(_poses(tt), truth, atol=1e-9)
 
@@ -101,14 +105,17 @@ def test_without_the_flag_align_names_it_and_switching_it_reruns_ingest(logs, tm
     _, withheld, _ = logs
     store = RunStore(tmp_path / "run")
     (plain,) = _label(store, _run(withheld, None), "r1", stages=("ingest",))
-    t = store.read_table("00", "ingest", "frames").to_pydict()
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
     assert t["pose"] == [None] * N_FRAMES and t["pose_source"] == [None] * N_FRAMES
     assert plain.plan["pose_source"] is None
     with pytest.raises(PoseFormatError, match=r"needs poses; the log has none .*--estimate-poses"):
         _label(store, _run(withheld, None), "r2", stages=("align",))
     ingest, align = _label(store, _run(withheld, True), "r3")
     assert ingest.fingerprint != plain.fingerprint and align.status == "done"
-    assert store.read_table("00", "ingest", "frames")["pose_source"].to_pylist() == ["estimated"] * N_FRAMES
+    assert (
+        store.read_table("00", P["ingest"].table("frames"))["pose_source"].to_pylist()
+        == ["estimated"] * N_FRAMES
+    )
 
 
 def test_quarantined_frame_is_skipped_by_odometry(logs, tmp_path):
@@ -120,7 +127,7 @@ def test_quarantined_frame_is_skipped_by_odometry(logs, tmp_path):
     store = RunStore(tmp_path / "run")
     ingest, align = _label(store, _run(log, True, on_error="skip"), "r1")
     assert ingest.counts["quarantined"] == 1 and len(ingest.blocks) == 1
-    t = store.read_table("00", "ingest", "frames").to_pydict()
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
     assert t["status"][4] == "quarantined" and t["pose"][4] is None and t["pose_source"][4] is None
     ok = [i for i in range(N_FRAMES) if i != 4]
     assert [t["pose_source"][i] for i in ok] == ["estimated"] * len(ok)

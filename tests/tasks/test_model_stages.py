@@ -12,8 +12,11 @@ from dsnet_core.model.bundle import load_shift_weights
 from dsnet_core.model.inference import Predictor
 from storage.run import RunStore
 from tasks.infer import dequantise_probs
+from tasks.methods import get_pipeline
 from tasks.runner import prepare_stage, run_stage_plain
 from tests.model_helpers import KILL_STITCH_AT_THIRD_VOLUME, make_checkpoint
+
+P = get_pipeline()  # the DS-Net stages
 
 LM = load_label_map("semantic-kitti")
 STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
@@ -39,15 +42,15 @@ def labelled(synth_log, tmp_path_factory):
     store = RunStore(tmp / "run")
     run = run_config(synth_log, ckpt)
     store.write_run_config("r1", run)
-    manifests = {s: run_stage_plain(store, "00", s, run, "r1") for s in STAGES}
+    manifests = {s: run_stage_plain(store, P, "00", s, run, "r1") for s in STAGES}
     return store, run, ckpt, manifests
 
 
 def test_infer_matches_the_predictor(labelled):
     store, _, ckpt, m = labelled
     assert m["infer"].n_items == m["align"].n_items == 5 and m["infer"].status == "done"
-    pts = store.arrays("00", "align").read_item(3)["points"]
-    got = store.arrays("00", "infer").read_item(3)
+    pts = store.arrays("00", P["align"].contract).read_item(3)["points"]
+    got = store.arrays("00", P["infer"].contract).read_item(3)
     want = Predictor.from_checkpoint(ckpt).predict(pts)
     assert np.array_equal(got["sem"], want.sem) and got["sem"].dtype == np.uint8
     assert np.abs(dequantise_probs(got["probs"]) - want.probs.astype(np.float32)).max() <= 1 / 510 + 1e-3
@@ -55,7 +58,7 @@ def test_infer_matches_the_predictor(labelled):
     assert m["infer"].counts["points"] == m["align"].counts["points"]
     # config batch > 1 runs several volumes per forward pass: no cross-talk between them
     both = Predictor.from_checkpoint(ckpt).predict_batch(
-        [store.arrays("00", "align").read_item(i)["points"] for i in (2, 3)]
+        [store.arrays("00", P["align"].contract).read_item(i)["points"] for i in (2, 3)]
     )
     assert np.array_equal(both[1].sem, got["sem"]) and np.allclose(both[1].offsets, got["offsets"], atol=1e-5)
     assert m["infer"].counts["thing_points"] > 0  # random weights still predict some thing classes
@@ -63,9 +66,9 @@ def test_infer_matches_the_predictor(labelled):
 
 def test_shift_ids_equal_the_clusterer(labelled):
     store, _, ckpt, _ = labelled
-    xyz = store.arrays("00", "align").read_item(1)["points"][:, :3]
-    inf = store.arrays("00", "infer").read_item(1)
-    got = store.arrays("00", "shift").read_item(1)
+    xyz = store.arrays("00", P["align"].contract).read_item(1)["points"][:, :3]
+    inf = store.arrays("00", P["infer"].contract).read_item(1)
+    got = store.arrays("00", P["shift"].contract).read_item(1)
     thing = LM.is_thing()[inf["sem"]]
     assert (got["instance"][~thing] == 0).all() and (got["instance"][thing] > 0).all()
     cfg = TypeAdapter(ClustererConfig).validate_python(SHIFT_4D)
@@ -80,11 +83,11 @@ def test_shift_ids_equal_the_clusterer(labelled):
 
 def test_fuse_one_class_per_instance_and_stuff_untouched(labelled):
     store, _, _, m = labelled
-    rows = store.read_table("00", "fuse", "instances").to_pydict()
+    rows = store.read_table("00", P["fuse"].table("instances")).to_pydict()
     assert len(rows["id"]) == m["fuse"].counts["instances"] > 0
     for v in range(m["fuse"].n_items):
-        inf = store.arrays("00", "infer").read_item(v, ["sem"])["sem"]
-        out = store.arrays("00", "fuse").read_item(v)
+        inf = store.arrays("00", P["infer"].contract).read_item(v, ["sem"])["sem"]
+        out = store.arrays("00", P["fuse"].contract).read_item(v)
         stuff = ~LM.is_thing()[inf]
         assert (out["inst"][stuff] == 0).all() and np.array_equal(out["sem"][stuff], inf[stuff])
         ids = np.unique(out["inst"][out["inst"] > 0])
@@ -102,7 +105,7 @@ def test_stitch_labels_split_back_to_frames_by_ownership(labelled, synth_log):
     refs = reader.frames("00")
     windows = m["align"].plan["windows"]
     assert windows == [[0, 1], [1, 2], [2, 3], [3, 4], [4, 5]]
-    stitch = store.arrays("00", "stitch")
+    stitch = store.arrays("00", P["stitch"].contract)
     assert stitch.done().all() and m["stitch"].counts["frames"] == 6 and len(m["stitch"].blocks) == 1
     seen_ids = {}
     labels = [stitch.read_item(f)["label"] for f in range(6)]
@@ -110,8 +113,8 @@ def test_stitch_labels_split_back_to_frames_by_ownership(labelled, synth_log):
         label = labels[f]
         assert label.shape == (reader.scan(refs[f]).shape[0],)
         owner = next(v for v, w in enumerate(windows) if f in w)  # the first volume holding the frame
-        src = store.arrays("00", "align").read_item(owner)
-        fused = store.arrays("00", "fuse").read_item(owner)
+        src = store.arrays("00", P["align"].contract).read_item(owner)
+        fused = store.arrays("00", P["fuse"].contract).read_item(owner)
         sel = src["source_frame"] == f
         assert np.array_equal(np.sort(src["source_index"][sel]), np.arange(label.size))  # once each
         want_sem = LM.to_raw(fused["sem"][sel].astype(np.int64))
@@ -120,7 +123,7 @@ def test_stitch_labels_split_back_to_frames_by_ownership(labelled, synth_log):
         assert ((inst > 0) == LM.is_thing()[LM.to_train(label & 0xFFFF)]).all()
         for tid in np.unique(inst[inst > 0]).tolist():
             seen_ids.setdefault(tid, []).append(f)
-    tracks = store.read_table("00", "stitch", "tracks").to_pydict()
+    tracks = store.read_table("00", P["stitch"].table("tracks")).to_pydict()
     assert tracks["id"] == sorted(seen_ids) and m["stitch"].counts["tracks"] == len(tracks["id"])
     for k, tid in enumerate(tracks["id"]):
         assert tracks["frames"][k] == seen_ids[tid]
@@ -132,37 +135,30 @@ def test_stitch_labels_split_back_to_frames_by_ownership(labelled, synth_log):
 
 def test_clusterer_change_and_new_checkpoint_reprocess_only_downstream(labelled, synth_log, tmp_path):
     store, run, _, m = labelled
-    assert all(prepare_stage(store, "00", s, run, "r1").action == "skip" for s in STAGES)
+    assert all(prepare_stage(store, P, "00", s, run, "r1").action == "skip" for s in STAGES)
     dbscan = run_config(synth_log, run["stages"]["infer"]["checkpoint"], clusterer={"kind": "dbscan"})
-    assert prepare_stage(store, "00", "infer", dbscan, "r2").action == "skip"
+    assert prepare_stage(store, P, "00", "infer", dbscan, "r2").action == "skip"
     other = make_checkpoint(tmp_path / "other", seed=1)
     new_model = run_config(synth_log, other)
-    assert prepare_stage(store, "00", "align", new_model, "r3").action == "skip"
-    from tasks.registry import STAGES as SPECS
+    assert prepare_stage(store, P, "00", "align", new_model, "r3").action == "skip"
+    from tasks.runner import make_context, stage_fingerprint
 
-    from storage.manifest import fingerprint
-    from tasks.runner import make_context, resolved_config
-
-    def infer_fp(r):
-        ctx = make_context(store, "00", "infer", r)
-        up = {"align": m["align"].fingerprint}
-        return fingerprint("infer", "1", resolved_config("infer", r), up, SPECS["infer"].inputs(ctx))
-
-    assert infer_fp(run) == m["infer"].fingerprint and infer_fp(new_model) != m["infer"].fingerprint
+    assert stage_fingerprint(store, P, "00", "infer", run) == m["infer"].fingerprint
+    assert stage_fingerprint(store, P, "00", "infer", new_model) != m["infer"].fingerprint
     # the same weights under another path with other shifting weights: still a new model
     make_checkpoint(tmp_path / "noshift", seed=0, shift_weights=False)
-    assert SPECS["infer"].inputs(
-        make_context(store, "00", "infer", run_config(synth_log, tmp_path / "noshift"))
-    ) != (SPECS["infer"].inputs(make_context(store, "00", "infer", run)))
+    noshift = make_context(store, P, "00", "infer", run_config(synth_log, tmp_path / "noshift"))
+    assert P["infer"].inputs(noshift) != P["infer"].inputs(make_context(store, P, "00", "infer", run))
 
 
 KILL_AT_THIRD_VOLUME = (
     KILL_STITCH_AT_THIRD_VOLUME
     + """
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tasks.runner import run_stage_plain
 store = RunStore(sys.argv[1])
-run_stage_plain(store, "00", "stitch", store.read_run_config("r1"), "r1", force=True)
+run_stage_plain(store, get_pipeline(), "00", "stitch", store.read_run_config("r1"), "r1", force=True)
 """
 )
 
@@ -178,7 +174,7 @@ def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path, c
 
     store, run, _, m = labelled
     repo = Path(__file__).resolve().parents[2]
-    reference = [store.arrays("00", "stitch").read_item(f)["label"] for f in range(6)]
+    reference = [store.arrays("00", P["stitch"].contract).read_item(f)["label"] for f in range(6)]
     for keep_state in (True, False):  # resume from the saved stitcher state, or replay from volume 0
         root = tmp_path / f"run-{keep_state}"
         shutil.copytree(store.uri, root)
@@ -192,21 +188,23 @@ def test_stitch_killed_mid_sequence_resumes_from_its_state(labelled, tmp_path, c
         )
         assert res.returncode == -signal.SIGKILL, res.stderr
         copy = RunStore(root)
-        assert copy.arrays("00", "stitch").done().tolist() == [True] * 3 + [False] * 3
+        assert copy.arrays("00", P["stitch"].contract).done().tolist() == [True] * 3 + [False] * 3
         assert copy.read_manifest("00", "stitch").status == "running"
         assert copy.root.read_json("sequences/00/stitch/state.json")["volume"] == 1
         if not keep_state:
             copy.root.remove("sequences/00/stitch/state.json")
-        d = prepare_stage(copy, "00", "stitch", run, "r1")
+        d = prepare_stage(copy, P, "00", "stitch", run, "r1")
         assert d.action == "resume" and len(d.jobs) == 1
         caplog.clear()
         with caplog.at_level(logging.INFO, logger="tasks.stitch"):
-            resumed = run_stage_plain(copy, "00", "stitch", run, "r1")
+            resumed = run_stage_plain(copy, P, "00", "stitch", run, "r1")
         assert ("resumes after volume 1" in caplog.text) == keep_state
         assert resumed.fingerprint == m["stitch"].fingerprint and resumed.counts == m["stitch"].counts
         for f in range(6):
-            assert np.array_equal(copy.arrays("00", "stitch").read_item(f)["label"], reference[f])
-        assert copy.read_table("00", "stitch", "tracks").equals(store.read_table("00", "stitch", "tracks"))
+            assert np.array_equal(copy.arrays("00", P["stitch"].contract).read_item(f)["label"], reference[f])
+        assert copy.read_table("00", P["stitch"].table("tracks")).equals(
+            store.read_table("00", P["stitch"].table("tracks"))
+        )
         assert not copy.root.exists("sequences/00/stitch/state.json")
 
 
@@ -221,16 +219,16 @@ def test_quarantined_frame_gets_no_label_and_the_rest_stitch(tmp_path):
     run = run_config(log, make_checkpoint(tmp_path / "ckpt"), scans=2)
     run["options"]["on_error"] = "skip"
     store.write_run_config("r1", run)
-    m = {s: run_stage_plain(store, "00", s, run, "r1") for s in STAGES}
+    m = {s: run_stage_plain(store, P, "00", s, run, "r1") for s in STAGES}
     assert m["align"].plan["windows"] == [[0, 1], [1, 3], [3, 4], [4, 5]]  # frame 2 left out
-    arrays = store.arrays("00", "stitch")
+    arrays = store.arrays("00", P["stitch"].contract)
     assert (
         arrays.done().tolist() == [True, True, False, True, True, True] and m["stitch"].counts["frames"] == 5
     )
     reader = SemanticKittiReader(log)
     for f in (0, 1, 3, 4, 5):
         assert arrays.read_item(f)["label"].shape == (reader.scan(reader.frames("00")[f]).shape[0],)
-    tracks = store.read_table("00", "stitch", "tracks").to_pydict()
+    tracks = store.read_table("00", P["stitch"].table("tracks")).to_pydict()
     assert all(2 not in frames for frames in tracks["frames"])
     summary = export_semantickitti(store.uri, tmp_path / "out")
     assert summary.frames == {"00": 5} and summary.missing == {"00": ["000002"]}

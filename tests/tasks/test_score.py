@@ -10,16 +10,18 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pytest
-from tasks.score_report import read_report_table, write_report
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from dsnet_core.viz.png import decode_png
-from storage.contract import HEADLINE_KEYS
+from flows.report import HEADLINE_KEYS, read_report_table, write_report
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tasks.runner import prepare_stage, run_stage_plain
-from tests.tasks.oracle_stitch import perturb
+from tests.tasks.oracle_stitch import ORACLE, perturb
+
+P = ORACLE  # ingest, the stand-in labels stage "oracle", score
 
 SEQS = ("00", "01")
 HIVE = ds.partitioning(pa.schema([("sequence", pa.string())]), flavor="hive")
@@ -29,8 +31,8 @@ def _label(store, log, mode="official", run_id="r1"):
     run = {"data": str(log), "stages": {"score": {"mode": mode}}, "options": {"block_size": 4}}
     store.write_run_config(run_id, run)
     for seq in SEQS:
-        for stage in ("ingest", "stitch", "score"):
-            run_stage_plain(store, seq, stage, run, run_id)
+        for stage in ("ingest", "oracle", "score"):
+            run_stage_plain(store, P, seq, stage, run, run_id)
     return run
 
 
@@ -53,7 +55,7 @@ def _same(a, b) -> bool:
 def scored(oracle_stages, synth_log, tmp_path):
     store = RunStore(tmp_path / "run")
     _label(store, synth_log)
-    return store, write_report(store, bev_frames=3, review_rows=5)
+    return store, write_report(store, P, bev_frames=3, review_rows=5)
 
 
 def test_frame_rows_and_merged_numbers_equal_one_pass(scored, synth_log):
@@ -96,7 +98,7 @@ def test_timings_pictures_and_review_queue(scored):
     store, _ = scored
     timings = read_report_table(store, "stage_timings").to_pylist()
     assert {(t["sequence"], t["stage"]) for t in timings} == {
-        (s, g) for s in SEQS for g in ("ingest", "stitch", "score")
+        (s, g) for s in SEQS for g in ("ingest", "oracle", "score")
     }
     score = next(t for t in timings if t["stage"] == "score" and t["sequence"] == "00")
     assert (
@@ -116,9 +118,9 @@ def test_timings_pictures_and_review_queue(scored):
     assert (pred != gt).any(axis=2).sum() > 50  # the perturbation shows
     assert len(np.unique(gt.reshape(-1, 3), axis=0)) > 5  # several instance/class colours
     review = read_report_table(store, "review_queue").to_pylist()
-    tracks = ds.dataset(store.root.path("tables/tracks"), partitioning=HIVE).to_table().to_pylist()
+    tracks = ds.dataset(store.root.path("tables/oracle_tracks"), partitioning=HIVE).to_table().to_pylist()
     assert [r["confidence"] for r in review] == sorted(t["confidence"] for t in tracks)[:5]
-    assert all(r["source"] == "stitch/tracks" for r in review)
+    assert all(r["source"] == "oracle/oracle_tracks" for r in review)
     first = next(
         t for t in tracks if t["confidence"] == review[0]["confidence"] and t["id"] == review[0]["instance"]
     )
@@ -157,10 +159,10 @@ def test_resume_after_lost_block_gives_the_same_report(scored, synth_log):
     m = store.read_manifest("00", "score")
     m.status = "running"
     store.write_manifest(m)
-    d = prepare_stage(store, "00", "score", run, "r1")
+    d = prepare_stage(store, P, "00", "score", run, "r1")
     assert d.action == "resume" and [j.block for j in d.jobs] == [1]
-    run_stage_plain(store, "00", "score", run, "r1")
-    again = write_report(store, bev_frames=3, review_rows=5)
+    run_stage_plain(store, P, "00", "score", run, "r1")
+    again = write_report(store, P, bev_frames=3, review_rows=5)
     for key in HEADLINE_KEYS:
         assert _same(again.run[key], report.run[key])
 
@@ -171,7 +173,7 @@ def test_corrected_mode_is_recorded_and_refingerprints(oracle_stages, synth_log,
     fp = store.read_manifest("00", "score").fingerprint
     _label(store, synth_log, "corrected", "r2")
     assert store.read_manifest("00", "score").fingerprint != fp
-    run = write_report(store, bev_frames=0).run
+    run = write_report(store, P, bev_frames=0).run
     ref = _one_pass(synth_log, mode="corrected").result()
     assert run["mode"] == "corrected" and run["lstq"] == ref.lstq.lstq and run["pq"] == ref.panoptic.pq
     assert read_report_table(store, "score_bev").num_rows == 0
@@ -187,29 +189,27 @@ def test_a_log_without_ground_truth_scores_nothing(oracle_stages, tmp_path):
     store = RunStore(tmp_path / "run")
     run = {"data": str(log), "stages": {}, "options": {"block_size": 2}}
     store.write_run_config("r1", run)
-    for stage in ("ingest", "stitch", "score"):
-        m = run_stage_plain(store, "00", stage, run, "r1")
+    for stage in ("ingest", "oracle", "score"):
+        m = run_stage_plain(store, P, "00", stage, run, "r1")
     assert m.status == "done" and m.n_items == 0
-    assert store.read_table("00", "score", "frame_metrics").num_rows == 0
-    assert write_report(store) is None
+    assert store.read_table("00", P["score"].table("frame_metrics")).num_rows == 0
+    assert write_report(store, P) is None
 
 
-def test_model_card_id_names_the_checkpoint_and_its_weights(tmp_path):
-    import json
-
-    from tasks.score_report import model_card_id
-
+def test_model_card_id_comes_from_the_model_stage_plan(tmp_path):
+    from dsnet_core.labels import class_map_of
+    from flows.report.merge import model_plan
     from storage.manifest import Manifest
+    from tasks.base import CLASS_MAP
 
+    dsnet = get_pipeline("dsnet")
     store = RunStore(tmp_path / "run")
-    ckpt = tmp_path / "tiny-v2"
-    ckpt.mkdir()
-    (ckpt / "card.json").write_text(json.dumps({"weights_sha256": "ab" * 32}))
-    assert model_card_id(store, ["00"]) == ""  # no infer stage ran
-    # the checkpoint the infer stage resolved (configured or bundled) is in its manifest's plan
+    assert model_plan(store, dsnet, ["00"]) == {}  # no model stage ran
+    # infer records the checkpoint it resolved (configured or bundled) and its card's class map
+    plan = {"model_card": "tiny-v2@" + "ab" * 6, CLASS_MAP: class_map_of(load_label_map("semantic-kitti"))}
     m = Manifest(
         stage="infer", sequence="00", fingerprint="f", status="done", code_version="1", config={},
-        upstream={}, inputs="", run_id="r1", plan={"checkpoint": str(ckpt)},
+        upstream={}, inputs="", run_id="r1", plan=plan,
     )  # fmt: skip
     store.write_manifest(m)
-    assert model_card_id(store, ["00"]) == "tiny-v2@" + "ab" * 6
+    assert model_plan(store, dsnet, ["00"])["model_card"] == "tiny-v2@" + "ab" * 6

@@ -9,8 +9,11 @@ from dsnet_core.errors import ScanFormatError
 from dsnet_core.io import kitti
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from storage.run import RunStore
+from tasks.methods import get_pipeline
 from tasks.runner import finalize_stage, prepare_stage, run_block, run_stage_plain, stage_state
 from tests.logs import NOISE, make_log, pose
+
+P = get_pipeline()  # the DS-Net stages
 
 
 @pytest.fixture
@@ -23,16 +26,16 @@ def _run(log, **align):
 
 
 def _all(store, run, run_id="r1", force=False):
-    return [run_stage_plain(store, "00", s, run, run_id, force) for s in ("ingest", "align")]
+    return [run_stage_plain(store, P, "00", s, run, run_id, force) for s in ("ingest", "align")]
 
 
 def test_ingest_frame_table(log, tmp_path):
     store = RunStore(tmp_path / "run")
     run = _run(log)
     store.write_run_config("r1", run)
-    m = run_stage_plain(store, "00", "ingest", run, "r1")
+    m = run_stage_plain(store, P, "00", "ingest", run, "r1")
     assert m.status == "done" and m.n_items == 7 and len(m.blocks) == 4 and m.counts["frames"] == 7
-    t = store.read_table("00", "ingest", "frames").to_pydict()
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
     reader = SemanticKittiReader(log)
     refs = reader.frames("00")
     assert t["frame_id"] == [f"{i:06d}" for i in range(7)]
@@ -47,7 +50,7 @@ def test_align_volumes_split_back_and_keep_labels(log, tmp_path):
     store.write_run_config("r1", run)
     _, m = _all(store, run)
     assert m.plan["windows"] == [[0, 1, 2], [2, 3, 4], [4, 5, 6]]
-    arrays = store.arrays("00", "align")
+    arrays = store.arrays("00", P["align"].contract)
     reader = SemanticKittiReader(log)
     refs = reader.frames("00")
     vol = arrays.read_item(1)
@@ -63,7 +66,7 @@ def test_align_volumes_split_back_and_keep_labels(log, tmp_path):
         assert np.array_equal(np.sort(order), np.arange(len(scan)))
         assert np.array_equal(vol["labels"][sel], label[order])
         assert np.array_equal(vol["points"][sel, 3], scan[order, 3])
-    vols = store.read_table("00", "align", "volumes").to_pydict()
+    vols = store.read_table("00", P["align"].table("volumes")).to_pydict()
     assert vols["ref_frame"] == [2, 4, 6] and vols["n_points"] == arrays.n_points().tolist()
 
 
@@ -74,11 +77,11 @@ def test_quarantine_with_skip_and_clear_error_by_default(log, tmp_path):
     run = _run(log, scans=2)
     store.write_run_config("r1", run)
     with pytest.raises(ScanFormatError, match=r"000003\.bin: size \d+ bytes is not a multiple of 16"):
-        run_stage_plain(store, "00", "ingest", run, "r1")
+        run_stage_plain(store, P, "00", "ingest", run, "r1")
     run["options"]["on_error"] = "skip"
     store.write_run_config("r2", run)
     _, m = _all(store, run, "r2")
-    t = store.read_table("00", "ingest", "frames").to_pydict()
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
     assert t["status"][3] == "quarantined" and "not a multiple of 16" in t["reason"][3]
     assert all(3 not in w for w in m.plan["windows"])  # quarantined frames are left out of every window
     assert sorted({f for w in m.plan["windows"] for f in w}) == [0, 1, 2, 4, 5, 6]
@@ -89,52 +92,52 @@ def test_resume_reprocess_and_force(log, tmp_path):
     run = _run(log, scans=2)
     store.write_run_config("r1", run)
     ingest, align = _all(store, run)
-    ref = [store.arrays("00", "align").read_item(i) for i in range(align.n_items)]
+    ref = [store.arrays("00", P["align"].contract).read_item(i) for i in range(align.n_items)]
     # rerun: nothing to do
-    assert prepare_stage(store, "00", "align", run, "r1").action == "skip"
+    assert prepare_stage(store, P, "00", "align", run, "r1").action == "skip"
     # an interrupted align: one block's fragment lost, manifest still running
     os.remove(tmp_path / "run/sequences/00/align/blocks/00001.json")
     m = store.read_manifest("00", "align")
     m.status = "running"
     store.write_manifest(m)
-    assert stage_state(store, "00", "align", run)[0] == "partial"
-    arrays = store.arrays("00", "align", read_only=False)
+    assert stage_state(store, P, "00", "align", run)[0] == "partial"
+    arrays = store.arrays("00", P["align"].contract, read_only=False)
     arrays.group["done"][3] = 0  # killed inside block 1 (items 2, 3): item 2 finished, item 3 did not
-    d = prepare_stage(store, "00", "align", run, "r1")
+    d = prepare_stage(store, P, "00", "align", run, "r1")
     assert d.action == "resume" and [j.block for j in d.jobs] == [1] and d.jobs[0].items == (2, 3)
     out = run_block(d.jobs[0], store)
     assert out["items_resumed"] == 1 and out["volumes"] == 2  # item 2 came from its done flag and record
-    m2 = finalize_stage(store, "00", "align", d.fingerprint)
+    m2 = finalize_stage(store, P, "00", "align", d.fingerprint)
     assert m2.fingerprint == align.fingerprint and m2.status == "done" and m2.counts == align.counts
-    assert store.read_table("00", "align", "volumes").num_rows == align.n_items
+    assert store.read_table("00", P["align"].table("volumes")).num_rows == align.n_items
     for i, r in enumerate(ref):
-        got = store.arrays("00", "align").read_item(i)
+        got = store.arrays("00", P["align"].contract).read_item(i)
         assert all(np.array_equal(got[k], r[k]) for k in r)
     # a changed align config reprocesses align only
     run3 = _run(log, scans=3)
-    assert stage_state(store, "00", "align", run3)[0] == "stale"
-    assert prepare_stage(store, "00", "ingest", run3, "r3").action == "skip"
-    assert prepare_stage(store, "00", "align", run3, "r3").action == "fresh"
+    assert stage_state(store, P, "00", "align", run3)[0] == "stale"
+    assert prepare_stage(store, P, "00", "ingest", run3, "r3").action == "skip"
+    assert prepare_stage(store, P, "00", "align", run3, "r3").action == "fresh"
     # a changed source file: ingest reruns and clears align (downstream) at once
     scan = kitti.read_scan(log / "sequences/00/velodyne/000002.bin")
     kitti.write_scan(log / "sequences/00/velodyne/000002.bin", scan * 1.01)
     store.write_run_config("r4", run3)
-    d = prepare_stage(store, "00", "ingest", run3, "r4")
+    d = prepare_stage(store, P, "00", "ingest", run3, "r4")
     assert d.action == "fresh" and store.read_manifest("00", "align") is None
-    assert stage_state(store, "00", "align", run3)[0] == "missing"
+    assert stage_state(store, P, "00", "align", run3)[0] == "missing"
     new_ingest, _ = _all(store, run3, "r4")
     assert new_ingest.fingerprint != ingest.fingerprint
     # force recomputes a finished stage
-    assert prepare_stage(store, "00", "ingest", run3, "r5", force=True).action == "fresh"
+    assert prepare_stage(store, P, "00", "ingest", run3, "r5", force=True).action == "fresh"
 
 
-def test_stage_registry_imports_without_torch():
+def test_methods_import_without_torch():
     """`dsnet status` and the CLI's planning import every stage: torch loads only when a model runs."""
     import subprocess
     import sys
     from pathlib import Path
 
-    code = "import sys, tasks.registry, tasks.shift, tasks.infer; print('torch' in sys.modules)"
+    code = "import sys, tasks.methods, flows.request; print('torch' in sys.modules)"
     root = Path(__file__).resolve().parents[2]
     out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

@@ -1,4 +1,4 @@
-"""A literal, loop-per-class transcription of the 4D benchmark's LSTQ (METRICS.md, "LSTQ").
+"""A literal, loop-per-class transcription of the 4D benchmark's LSTQ (docs/metrics.md, "LSTQ").
 
 4D-PLS's ``Panoptic4DEval`` is not published on PyPI, so this slow re-implementation of its
 per-class loop (dict tables, one mask per class, the same +1 shift and skipped id) is the

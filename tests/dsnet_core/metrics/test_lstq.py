@@ -1,7 +1,7 @@
 """LSTQ (4D benchmark semantics): hand-built sequences for each rule, both modes, golden cases.
 
 4D-PLS's ``Panoptic4DEval`` is not installable from PyPI, so official mode is checked against
-``ref_4dpls.Ref4DPLS``, a literal loop-per-class transcription of METRICS.md ("spec-derived
+``ref_4dpls.Ref4DPLS``, a literal loop-per-class transcription of docs/metrics.md ("spec-derived
 golden cases"), and against hand-computed values.
 """
 

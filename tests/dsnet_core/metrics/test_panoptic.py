@@ -1,4 +1,4 @@
-"""PQ family and mIoU: the paper's toy example and one hand-built frame per rule of METRICS.md."""
+"""PQ family and mIoU: the paper's toy example and one hand-built frame per rule of docs/metrics.md."""
 
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ SMALL_GRID = CylinderGrid(size=(24, 20, 8), min_bound=(0.0, -math.pi, -2.0), max
 
 def test_paper_preset_parameter_count():
     m = DSNet(get_preset("paper"))
-    # DSNET.md: ≈55.7 M in the backbone, ≈56.5 M in the whole model
+    # docs/algorithm.md: ≈55.7 M in the backbone, ≈56.5 M in the whole model
     assert count_parameters(m.backbone) == 55_671_424
     assert count_parameters(m) == 56_521_561
     assert m.backbone.out_channels == 128

@@ -24,10 +24,10 @@ P = get_pipeline()  # the DS-Net stages
 
 def stitched(store: RunStore, seq: str) -> list[np.ndarray]:
     """The stitched final labels ``(N_f,) uint32`` of every frame of ``seq`` in ingest order."""
-    from flows.export import stitched_frames
+    from flows.export import final_labels
 
     out = []
-    for _, frame_id, label in stitched_frames(store, [seq]):
+    for _, frame_id, label in final_labels(store, [seq]):
         if label is None:
             raise SystemExit(f"{seq}/{frame_id} has no final label (quarantined): score on a clean log")
         out.append(label)

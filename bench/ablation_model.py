@@ -24,7 +24,8 @@ from _store4d import stitched
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
-from flows.commands.label import run_label_flow, stage_settings
+from flows.commands.label import run_label
+from flows.request import LabelRequest, stage_settings
 from flows.server import prefect_api
 from storage.run import RunStore
 
@@ -43,7 +44,7 @@ def label(data: Path, run: Path, ckpt: str, clusterer: dict) -> float:
     """Label every sequence of ``data`` into ``run`` with ``clusterer``; seconds per frame of shift."""
     seqs = SemanticKittiReader(data).sequences()
     stages = stage_settings(1, None, ckpt, json.dumps(clusterer))
-    summary = run_label_flow(str(data), str(run), seqs, stages, {"block_size": 25})
+    summary = run_label(LabelRequest(data=str(data), root=str(run), sequences=seqs, stages=stages))
     if any(r["action"] == "failed" for r in summary):
         raise SystemExit(f"label flow failed: {summary}")
     store = RunStore(str(run))

@@ -2,7 +2,7 @@
 
 The model-driven counterpart of ``bench_4d_oracle.py`` ("4D vs the tracking baseline on
 the same model and sequences"). Every row goes through the real label flow
-(``run_label_flow``: ingest → align → infer → shift → fuse → stitch → score, Prefect included),
+(``run_label``: ingest → align → infer → shift → fuse → stitch → score, Prefect included),
 one run store per k under ``--out`` (kept, so ``dsnet dashboard`` can be built from them):
 
 - ``k=1 + tracking``: the k = 1 run's per-frame instances (``fuse``'s volume-local ids; with
@@ -90,11 +90,13 @@ def make_log(root: Path, sequences: int, frames: int, seed: int, first: int, sen
 
 def label_run(data: Path, run: Path, seqs: list[str], k: int, ckpt: str, force: bool) -> dict[str, float]:
     """Run the label flow for one k; seconds of the flow call and of each stage (all sequences)."""
-    from flows.commands.label import run_label_flow, stage_settings
+    from flows.commands.label import run_label
+    from flows.request import LabelRequest, stage_settings
 
     stages = stage_settings(k, None, ckpt, None)
     t0 = time.perf_counter()
-    summary = run_label_flow(str(data), str(run), seqs, stages, {"block_size": 25}, force=force)
+    request = LabelRequest(data=str(data), root=str(run), sequences=seqs, stages=stages, force=force)
+    summary = run_label(request)
     flow_s = time.perf_counter() - t0
     failed = [r for r in summary if r["action"] == "failed"]
     if failed:
@@ -204,7 +206,7 @@ def markdown(results: dict[str, dict], meta: dict) -> str:
     lines += [
         "",
         "LSTQ/S_assoc/S_cls/PQ: official mode unless marked corrected. label s/frame: the stages' "
-        "manifest wall times ingest..stitch; flow s/frame: the whole `run_label_flow` call (Prefect "
+        "manifest wall times ingest..stitch; flow s/frame: the whole `run_label` call (Prefect "
         "tasks and artifacts included; one server for all runs, started before them); id switches: "
         "along ground-truth tubes (segments ≥ 50 points, IoU > 0.5); stitch/track ms/frame: "
         "dsnet_core's Stitcher re-run in memory on the stored volumes (its output checked equal to "

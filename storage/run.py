@@ -184,6 +184,10 @@ class RunStore:
     def has_table(self, spec: TableSpec) -> bool:
         return self.root.exists(posixpath.join("tables", spec.name))
 
+    def table_url(self, spec: TableSpec) -> str:
+        """Where a table lives (for messages)."""
+        return self.root.url(posixpath.join("tables", spec.name))
+
     def write_run_table(self, spec: TableSpec, rows: list[dict[str, Any]]) -> str:
         """An unpartitioned table (``tables/<name>/part-0.parquet``), rewritten whole."""
         return write_partition(self.root, spec, {}, to_table(spec, rows))
@@ -195,7 +199,7 @@ class RunStore:
             StoreError: the table was never written.
         """
         if not self.has_table(spec):
-            raise StoreError(self.root.url(posixpath.join("tables", spec.name)), "table not written yet")
+            raise StoreError(self.table_url(spec), "table not written yet")
         return read_table(self.root, spec)
 
     # -- the dashboard ---------------------------------------------------------------------------

@@ -61,9 +61,8 @@ def load_run(uri: str, label: str, storage_options: dict | None = None) -> RunTa
     store = RunStore(uri, storage_options)
     runs = _rows(store, "score_run")
     if not runs:
-        raise StoreError(
-            store.root.url("tables/score_run"), "no score report here: run the score stage first"
-        )
+        where = store.table_url(REPORT_TABLES["score_run"])
+        raise StoreError(where, "no score report here: run the score stage first")
     name = posixpath.basename(store.uri.rstrip("/")) or store.uri
     return RunTables(
         label=f"{label} · {name}",

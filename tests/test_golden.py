@@ -17,11 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tasks.methods import get_pipeline
 from tests.model_helpers import make_checkpoint
-
-P = get_pipeline()  # the DS-Net stages
-
 
 # recorded at 962284f (before the redesign)
 GOLDEN = {
@@ -73,7 +69,7 @@ def _label_run(log: Path, ckpt: Path, root: Path, scans: int):
     assert pipeline.names() == list(STAGES)
     store.write_run_config("golden", run)
     for stage in STAGES:
-        run_stage_plain(store, P, pipeline, "00", stage, run, "golden")
+        run_stage_plain(store, pipeline, "00", stage, run, "golden")
     write_report(store, pipeline, bev_frames=3, review_rows=5)
     export_semantickitti(str(root / "run"), root / "pred")
     return store

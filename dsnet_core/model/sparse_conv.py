@@ -2,8 +2,9 @@
 
 Three layers, as in spconv: :class:`SubMConv3d` (outputs = inputs), :class:`SparseConv3d`
 (strided, to a coarser grid) and :class:`SparseInverseConv3d` (back to the finer sites of a
-named strided layer). Rulebooks are cached on the tensor's shared :class:`TableCache`, so every
-layer at one resolution with one kernel shape reuses one table. The custom backward keeps only
+named strided layer). Kernel maps are cached on the tensor's shared :class:`TableCache`: one
+neighbour search per resolution serves every submanifold kernel there, and a strided layer's map
+serves its inverse. The custom backward keeps only
 the input features and the weights (no gathered copies). Weights are ``(K, C_in, C_out)`` with
 taps in the row-major order of dense ``conv3d`` kernels.
 """
@@ -16,7 +17,7 @@ from dataclasses import dataclass, field, replace
 import torch
 from torch import nn
 
-from dsnet_core.model.sparse_index import Rulebook, strided_rulebook, submanifold_rulebook
+from dsnet_core.model.sparse_index import NeighbourMap, Rulebook, strided_rulebook
 
 Triple = tuple[int, int, int]
 
@@ -27,14 +28,31 @@ def _triple(v: int | tuple[int, ...]) -> Triple:
 
 @dataclass
 class TableCache:
-    """Rulebooks shared by the layers of one forward pass.
+    """Kernel maps shared by the layers of one forward pass (and reused by its backward).
 
-    ``subm`` is keyed by (level, kernel); ``down`` by the strided layer's ``indice_key`` and holds
-    (rulebook, fine tensor geometry) so that the matching inverse layer returns to the fine sites.
+    ``maps`` holds one :class:`NeighbourMap` per level (the 3×3×3 box, or larger if a layer asks),
+    from which ``subm`` derives each (level, kernel) rulebook without another search; ``down`` is
+    keyed by the strided layer's ``indice_key`` and holds (rulebook, fine tensor geometry) so that
+    the matching inverse layer returns to the fine sites.
     """
 
+    maps: dict = field(default_factory=dict)
     subm: dict = field(default_factory=dict)
     down: dict = field(default_factory=dict)
+
+    def submanifold(self, x: SparseTensor, kernel: Triple) -> Rulebook:
+        """The rulebook of a submanifold ``kernel`` on ``x``'s sites (built at most once)."""
+        key = (x.level, kernel)
+        book = self.subm.get(key)
+        if book is None:
+            need = tuple(max(1, k // 2) for k in kernel)
+            nmap = self.maps.get(x.level)
+            if nmap is None or any(r < n for r, n in zip(nmap.radius, need, strict=True)):
+                if nmap is not None:
+                    need = tuple(max(r, n) for r, n in zip(nmap.radius, need, strict=True))
+                nmap = self.maps[x.level] = NeighbourMap.build(x.coords, x.shape, need, x.batch_size)
+            book = self.subm[key] = nmap.rulebook(kernel)
+        return book
 
 
 @dataclass
@@ -63,43 +81,46 @@ class SparseTensor:
 
 
 class _SparseConvFn(torch.autograd.Function):
-    """out[o] = Σ_k Σ_{(i, o) ∈ pairs_k} x[i] · W[k]; saves only ``x`` and ``W`` for backward."""
+    """out[o] = Σ_k Σ_{(i, o) ∈ pairs_k} x[i] · W[k]; saves only ``x`` and ``W`` for backward.
+
+    One gather → GEMM → scatter-add per non-empty tap segment, bounds read from host ints (no
+    device synchronisation); the submanifold centre tap is one dense GEMM that initialises the output.
+    """
 
     @staticmethod
     def forward(ctx, x: torch.Tensor, weight: torch.Tensor, book: Rulebook) -> torch.Tensor:
         ctx.save_for_backward(x, weight)
         ctx.book = book
-        out = x.new_zeros((book.n_out, weight.shape[2]))
-        for k, (i, o) in enumerate(book.pairs):
-            if i.numel() == 0:
-                continue
-            if book.identity[k]:
-                out.add_(x @ weight[k])
-            else:
-                out.index_add_(0, o, x.index_select(0, i) @ weight[k])
+        if book.identity is not None:
+            out = torch.mm(x, weight[book.identity])
+        else:
+            out = x.new_zeros((book.n_out, weight.shape[2]))
+        ins, outs = book.in_idx, book.out_idx
+        for tap, s, e in book.segments:
+            out.index_add_(0, outs[s:e], torch.mm(x.index_select(0, ins[s:e]), weight[tap]))
         return out
 
     @staticmethod
     def backward(ctx, grad_out: torch.Tensor):
         x, weight = ctx.saved_tensors
         book: Rulebook = ctx.book
-        grad_out = grad_out.contiguous()
-        gx = torch.zeros_like(x) if ctx.needs_input_grad[0] else None
-        gw = torch.zeros_like(weight) if ctx.needs_input_grad[1] else None
-        for k, (i, o) in enumerate(book.pairs):
-            if i.numel() == 0:
-                continue
-            if book.identity[k]:
-                g, xi = grad_out, x
-            else:
-                g, xi = grad_out.index_select(0, o), x.index_select(0, i)
-            if gw is not None:
-                gw[k] = xi.t() @ g
-            if gx is not None:
-                if book.identity[k]:
-                    gx.add_(g @ weight[k].t())
-                else:
-                    gx.index_add_(0, i, g @ weight[k].t())
+        g = grad_out.contiguous()
+        need_x, need_w = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        gx = gw = None
+        if need_w:
+            gw = torch.zeros_like(weight)
+            if book.identity is not None:
+                torch.mm(x.t(), g, out=gw[book.identity])
+        if need_x:
+            gx = torch.mm(g, weight[book.identity].t()) if book.identity is not None else torch.zeros_like(x)
+        ins, outs = book.in_idx, book.out_idx
+        for tap, s, e in book.segments:
+            i = ins[s:e]
+            go = g.index_select(0, outs[s:e])
+            if need_w:
+                torch.mm(x.index_select(0, i).t(), go, out=gw[tap])
+            if need_x:
+                gx.index_add_(0, i, torch.mm(go, weight[tap].t()))
         return gx, gw, None
 
 
@@ -136,12 +157,7 @@ class SubMConv3d(_SparseConvBase):
             raise ValueError(f"submanifold kernels must be odd, got {self.kernel_size}")
 
     def forward(self, x: SparseTensor) -> SparseTensor:
-        key = (x.level, self.kernel_size)
-        book = x.cache.subm.get(key)
-        if book is None:
-            book = submanifold_rulebook(x.coords, x.shape, self.kernel_size)
-            x.cache.subm[key] = book
-        return x.with_features(self._apply_book(x.features, book))
+        return x.with_features(self._apply_book(x.features, x.cache.submanifold(x, self.kernel_size)))
 
 
 class SparseConv3d(_SparseConvBase):
@@ -161,7 +177,9 @@ class SparseConv3d(_SparseConvBase):
         self.stride, self.padding, self.indice_key = _triple(stride), _triple(padding), indice_key
 
     def forward(self, x: SparseTensor) -> SparseTensor:
-        book, coords, shape = strided_rulebook(x.coords, x.shape, self.kernel_size, self.stride, self.padding)
+        book, coords, shape = strided_rulebook(
+            x.coords, x.shape, self.kernel_size, self.stride, self.padding, x.batch_size
+        )
         x.cache.down[self.indice_key] = (book, x.coords, x.shape, x.level)
         level = tuple(lv * s for lv, s in zip(x.level, self.stride, strict=True))
         return SparseTensor(self._apply_book(x.features, book), coords, shape, x.batch_size, level, x.cache)

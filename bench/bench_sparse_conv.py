@@ -178,6 +178,10 @@ def worker(impl: str, width: int, log_root: str, spconv_path: str | None, repeat
     run, layers, feats, info = build(impl, width, log_root, spconv_path)
     with torch.no_grad():
         out = run(feats)
+    if impl != "spconv":  # count our cached scratch buffers in the train step's peak
+        from dsnet_core.model.sparse_conv import release_workspace
+
+        release_workspace()
     _peak_reset()
     base = _peak_mb()
     try:

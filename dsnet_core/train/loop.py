@@ -10,6 +10,7 @@ import csv
 import json
 import logging
 import math
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -21,7 +22,7 @@ import torch
 from dsnet_core.errors import ConfigError
 from dsnet_core.io.reader import LogReader
 from dsnet_core.labels import LabelMap
-from dsnet_core.model.bundle import load_shift_weights, save_shift_weights
+from dsnet_core.model.bundle import SHIFT_WEIGHTS, load_shift_weights, save_shift_weights
 from dsnet_core.model.checkpoint import (
     CARD,
     ModelCard,
@@ -40,6 +41,7 @@ from dsnet_core.model.losses import (
 )
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
+from dsnet_core.train import commit
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
 from dsnet_core.train.metrics import ConfusionMeter
 from dsnet_core.train.shifting import (
@@ -148,6 +150,8 @@ class Trainer:
         self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
         if not self.train_vols:
             raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
+        if commit.recover(self.out):
+            log.info("%s: finished or discarded the epoch a kill interrupted", self.out)
         exists = (self.out / CARD).is_file()
         if exists and not resume:
             raise ConfigError(
@@ -274,10 +278,7 @@ class Trainer:
             record["seconds"] = round(time.perf_counter() - t0, 2)
             self.card.metrics.append(record)
             self.card.epochs["shift"] = epoch + 1
-            self.out.mkdir(parents=True, exist_ok=True)
-            save_shift_weights(self.out, module)
-            save_checkpoint(self.out, self.model, self.card)
-            write_metrics_table(self.out, self.card.metrics)
+            self._save("shift", epoch + 1, None, shift=module)
             log.info(
                 "shift epoch %d: loss %.4f, val shift L1 %.4f",
                 epoch + 1,
@@ -378,11 +379,25 @@ class Trainer:
             "val_iou": {names[c]: float(iou[c]) for c in range(1, len(iou)) if np.isfinite(iou[c])},
         }
 
-    def _save(self, stage: str, epochs_done: int, opt: torch.optim.Optimizer) -> None:
-        self.out.mkdir(parents=True, exist_ok=True)
-        save_train_state(self.out, opt, {"stage": stage, "epochs": epochs_done})
-        save_checkpoint(self.out, self.model, self.card)
-        write_metrics_table(self.out, self.card.metrics)
+    def _save(
+        self,
+        stage: str,
+        epochs_done: int,
+        opt: torch.optim.Optimizer | None,
+        shift: torch.nn.Module | None = None,
+    ) -> None:
+        """Write the epoch's files together (:mod:`dsnet_core.train.commit`): the optimiser state
+        (or the shifting weights), the weights, the card and the metrics."""
+        staging = commit.begin(self.out)
+        if opt is not None:
+            save_train_state(staging, opt, {"stage": stage, "epochs": epochs_done})
+        if shift is not None:
+            save_shift_weights(staging, shift)
+        elif (self.out / SHIFT_WEIGHTS).is_file():  # the card covers the shifting weights it sits with
+            shutil.copyfile(self.out / SHIFT_WEIGHTS, staging / SHIFT_WEIGHTS)
+        save_checkpoint(staging, self.model, self.card)
+        write_metrics_table(staging, self.card.metrics)
+        commit.commit(self.out)
 
 
 def _with_points(s: Sample, points: np.ndarray) -> Sample:

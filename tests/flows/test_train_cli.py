@@ -63,3 +63,44 @@ def test_sigkill_then_resume(tmp_path):
     assert [m["epoch"] for m in card["metrics"]] == [1, 2, 3, 4]
     rows = (ckpt / "metrics.csv").read_text().splitlines()
     assert len(rows) == 5
+
+
+def _train_files(ckpt: Path) -> dict[str, bytes]:
+    return {name: (ckpt / name).read_bytes() for name in ("model.safetensors", "shift.safetensors")}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+def test_kills_at_random_moments_resume_to_bit_identical_weights(tmp_path):
+    """Three SIGKILLs at seeded random moments across all three stages (semantic, offset, shift),
+    each followed by --resume: the final weights equal an uninterrupted run's, byte for byte."""
+    import random
+
+    log = write_tiny_log(tmp_path / "log", frames=2)
+    common = ["--stage", "all", "--epochs", "semantic=3,offset=2,shift=2", "--grid", "24,32,8"]
+    common += ["--lr", "0.01"]
+    straight = tmp_path / "straight"
+    cmd, env = cli(log, "--out", straight, *common)
+    t0 = time.monotonic()
+    res = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    total = time.monotonic() - t0
+    assert res.returncode == 0, res.stderr[-2000:]
+
+    ckpt = tmp_path / "killed"
+    rng = random.Random(20)
+    kills = 0
+    for attempt in range(3):
+        args = ["--out", ckpt, *common, *(["--resume"] if attempt else [])]
+        cmd, env = cli(log, *args)
+        proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            proc.wait(timeout=rng.uniform(0.2, 0.9) * total)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGKILL)
+            kills += 1
+        proc.communicate(timeout=600)
+    cmd, env = cli(log, "--out", ckpt, *common, "--resume")
+    resumed = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert kills >= 1
+    assert _train_files(ckpt) == _train_files(straight)

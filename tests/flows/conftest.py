@@ -61,3 +61,17 @@ def s3_endpoint():
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+@pytest.fixture(scope="session")
+def dask_cluster(prefect_api_url, s3_endpoint, tmp_path_factory):
+    """``dask scheduler`` and two ``dask worker`` processes on loopback (no nanny: a killed worker
+    stays dead), with this checkout, the session's Prefect server and the loopback S3 server."""
+    from tests.helpers.cluster import start_cluster
+
+    env = {**os.environ, **s3_endpoint, "PYTHONPATH": str(REPO), "PREFECT_API_URL": prefect_api_url}
+    cluster = start_cluster(tmp_path_factory.mktemp("dask"), env, n_workers=2)
+    try:
+        yield cluster
+    finally:
+        cluster.stop()

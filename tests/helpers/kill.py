@@ -1,0 +1,119 @@
+"""Kill a running ``dsnet`` process at a chosen moment: after a delay, or when a chosen stage of a
+run store has started (optionally after it finished some blocks), then SIGKILL (or another signal).
+
+The trigger is read from outside, through the run store's manifests, as an operator would see it;
+the process is one the harness started, and only it is signalled (its children, such as a
+temporary Prefect server, are left to their own clean-up, as after a real ``kill -9``).
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class KillPoint:
+    """When to signal.
+
+    Attributes:
+        stage: kill once this stage's manifest says ``running`` in ``sequence`` (None: time only).
+        sequence: the sequence whose stage is watched.
+        blocks: and once at least this many of its blocks are complete.
+        delay_s: seconds to wait after the stage trigger (or after start, with no stage).
+        sig: the signal (SIGKILL by default; SIGINT is Ctrl-C, SIGTERM a polite stop).
+    """
+
+    stage: str | None = None
+    sequence: str = "00"
+    blocks: int = 0
+    delay_s: float = 0.0
+    sig: int = signal.SIGKILL
+
+    def describe(self) -> str:
+        where = "start" if self.stage is None else f"{self.sequence}/{self.stage} ({self.blocks}+ blocks)"
+        return f"{signal.Signals(self.sig).name} {self.delay_s:.2f}s after {where}"
+
+
+@dataclass
+class KillResult:
+    """What happened: whether the signal was sent (the process may have finished first), the exit
+    code, its output, and seconds from the signal to the process's exit."""
+
+    killed: bool
+    returncode: int
+    output: str
+    exit_after_s: float | None
+
+
+def stage_started(root: str, sequence: str, stage: str, blocks: int = 0) -> Callable[[], bool]:
+    """A condition: ``stage`` of ``sequence`` in run store ``root`` is running (or done) with at
+    least ``blocks`` complete blocks."""
+    from storage.run import RunStore
+
+    store = RunStore(root)
+
+    def cond() -> bool:
+        try:
+            m = store.read_manifest(sequence, stage)
+        except Exception:
+            return False
+        if m is None or m.status not in ("running", "done"):
+            return False
+        return blocks <= 0 or len(store.completed_blocks(sequence, stage, m.fingerprint)) >= blocks
+
+    return cond
+
+
+def run_and_kill(
+    cmd: list[str],
+    env: dict[str, str],
+    point: KillPoint,
+    root: str | None = None,
+    cwd: str | None = None,
+    timeout: float = 600,
+    poll_s: float = 0.02,
+) -> KillResult:
+    """Start ``cmd``, signal it at ``point`` (``root`` is the run store watched for a stage trigger),
+    and wait for it to end.
+
+    Returns:
+        The result; ``killed`` is False when the process ended before the trigger.
+    """
+    cond = None
+    if point.stage is not None:
+        if root is None:
+            raise ValueError("a stage trigger needs the run store root")
+        cond = stage_started(root, point.sequence, point.stage, point.blocks)
+    out = subprocess.PIPE
+    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True)
+    chunks: list[str] = []
+    reader = threading.Thread(target=lambda: chunks.append(proc.stdout.read() if proc.stdout else ""))
+    reader.start()
+    deadline = time.monotonic() + timeout
+    killed, exit_after = False, None
+    try:
+        while cond is not None and not cond():
+            if proc.poll() is not None or time.monotonic() > deadline:
+                break
+            time.sleep(poll_s)
+        if proc.poll() is None and time.monotonic() <= deadline:
+            end = time.monotonic() + point.delay_s
+            while time.monotonic() < end and proc.poll() is None:
+                time.sleep(min(poll_s, max(end - time.monotonic(), 0)))
+            if proc.poll() is None:
+                proc.send_signal(point.sig)
+                killed, t0 = True, time.monotonic()
+                proc.wait(timeout=max(deadline - time.monotonic(), 30))
+                exit_after = time.monotonic() - t0
+        proc.wait(timeout=max(deadline - time.monotonic(), 1))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+        reader.join(timeout=30)
+    return KillResult(killed, proc.returncode, "".join(chunks), exit_after)

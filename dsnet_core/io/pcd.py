@@ -8,12 +8,12 @@ from ``python-neo-lzf`` (extra ``formats``).
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
 
 from dsnet_core.errors import MissingExtraError, PointFileFormatError
+from dsnet_core.io.asciinum import parse_numbers
 
 _TYPES = {("F", 4): "f4", ("F", 8): "f8", ("F", 2): "f2"}
 _TYPES.update({("U", n): f"u{n}" for n in (1, 2, 4, 8)})
@@ -104,16 +104,15 @@ def _layout(header: dict[str, list[str]], path: Path) -> tuple[np.dtype, int, st
 
 def _ascii(body: bytes, dtype: np.dtype, n: int, path: Path) -> np.ndarray:
     cols = sum(int(np.prod(dtype[name].shape)) if dtype[name].shape else 1 for name in dtype.names)
-    try:
-        values = np.loadtxt(io.BytesIO(body), dtype=np.float64, ndmin=2, max_rows=n)
-    except ValueError as exc:
-        raise PointFileFormatError(path, f"ascii body is not numeric: {exc}") from exc
-    if values.shape[0] < n or (n and values.shape[1] != cols):
+    flat, bad = parse_numbers(body, n * cols)
+    if bad is not None:
+        token = body[bad : bad + 20].split()[0].decode("ascii", "replace")
+        raise PointFileFormatError(path, f"ascii body is not numeric at byte {bad}: {token!r}")
+    if flat.size < n * cols:
         raise PointFileFormatError(
-            path,
-            f"ascii body has {values.shape[0]} rows of {values.shape[1]} values, "
-            f"header promises {n} × {cols}: truncated",
+            path, f"ascii body has {flat.size} values, the header promises {n} points × {cols}: truncated"
         )
+    values = flat.reshape(n, cols)
     out = np.empty(n, dtype=dtype)
     col = 0
     for name in dtype.names:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from dsnet_core.errors import MissingExtraError, PointFileFormatError
+from dsnet_core.io.asciinum import parse_numbers
 from dsnet_core.io.checks import check_points
 from dsnet_core.io.intensity import check_column
 from dsnet_core.io.pcd import read_pcd
@@ -184,15 +185,15 @@ def _ply_ascii(path: Path, want: str | None) -> Points | None:
             return None
         if not elements or elements[0] != "vertex" or not props:
             return None
-        values = (
-            np.loadtxt(fh, dtype=np.float64, ndmin=2, max_rows=count) if count else np.zeros((0, len(props)))
-        )
-    if values.shape != (count, len(props)):
+        body = fh.read()
+    flat, bad = parse_numbers(body, count * len(props))
+    if bad is not None or flat.size < count * len(props):
         raise PointFileFormatError(
             path,
-            f"ascii body has {values.shape[0]} rows of {values.shape[1]} values, header promises "
-            f"{count} × {len(props)}: truncated",
+            f"ascii body has {flat.size} values before {'a non-number' if bad is not None else 'its end'}, "
+            f"header promises {count} × {len(props)}: truncated",
         )
+    values = flat.reshape(count, len(props))
     return _named({name: values[:, i].astype(code) for i, (name, code) in enumerate(props)}, path, want)
 
 

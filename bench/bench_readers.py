@@ -32,7 +32,10 @@ def label_points_per_s(log: Path, tmp: Path) -> tuple[float, int]:
     """Points per second of the whole label pipeline (k = 1) on sequence 00, and its point count."""
     from bench.bench_stages import random_tiny_checkpoint
     from storage.run import RunStore
+    from tasks.methods import get_pipeline
     from tasks.runner import run_stage_plain
+
+    pipeline = get_pipeline()  # the DS-Net stages
 
     ckpt = random_tiny_checkpoint(tmp / "tiny-random")
     store = RunStore(tmp / "run")
@@ -40,7 +43,7 @@ def label_points_per_s(log: Path, tmp: Path) -> tuple[float, int]:
     store.write_run_config("bench", run)
     t0 = time.perf_counter()
     for stage in STAGES:
-        run_stage_plain(store, "00", stage, run, "bench")
+        run_stage_plain(store, pipeline, "00", stage, run, "bench")
     seconds = time.perf_counter() - t0
     points = store.read_manifest("00", "ingest").counts["points"]
     return points / seconds, points

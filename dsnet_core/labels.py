@@ -37,6 +37,8 @@ class LabelMap:
         split: split name -> list of sequence numbers.
         color_map: raw id -> (b, g, r).
         ignore: train ids not scored (``learning_ignore``; default: class 0).
+        track_groups: groups of thing train ids that a tracker may associate with each other
+            (YAML ``track_groups``); a thing class in no group forms a group of its own.
     """
 
     name: str
@@ -51,6 +53,7 @@ class LabelMap:
     color_map: dict[int, tuple[int, int, int]] = field(default_factory=dict)
     source: str = ""
     ignore: tuple[int, ...] = (0,)
+    track_groups: tuple[tuple[int, ...], ...] = ()
 
     @property
     def num_classes(self) -> int:
@@ -86,6 +89,16 @@ class LabelMap:
         mask = np.zeros(self.num_classes, dtype=bool)
         mask[list(self.things)] = True
         return mask
+
+    def track_group_of(self) -> np.ndarray:
+        """``(num_classes,) int64``: the association group of each train id (``track_groups`` in
+        order, then one group per remaining class)."""
+        group = np.full(self.num_classes, -1, dtype=np.int64)
+        for g, classes in enumerate(self.track_groups):
+            group[list(classes)] = g
+        rest = np.flatnonzero(group < 0)
+        group[rest] = len(self.track_groups) + np.arange(rest.size)
+        return group
 
     def to_train(self, raw: np.ndarray) -> np.ndarray:
         """Map raw semantic ids ``(N,)`` to train ids ``(N,) int32``.
@@ -227,6 +240,7 @@ def parse_label_map(data: dict, source: str = "<dict>") -> LabelMap:
         min_points = int(data.get("min_points", 50))
     except (TypeError, ValueError, AttributeError) as exc:
         raise ConfigError(f"{source}: 'split', 'color_map' or 'min_points' is malformed: {exc}") from exc
+    groups = _track_groups(data.get("track_groups") or [], things, source)
     return LabelMap(
         name=str(data.get("name", Path(source).stem)),
         labels=labels,
@@ -240,6 +254,7 @@ def parse_label_map(data: dict, source: str = "<dict>") -> LabelMap:
         color_map=color_map,  # type: ignore[arg-type]
         source=source,
         ignore=_learning_ignore(data.get("learning_ignore"), n_train, source),
+        track_groups=groups,
     )
 
 
@@ -248,6 +263,22 @@ def _int_values(d: dict[int, object], source: str, key: str) -> dict[int, int]:
         return {k: int(v) for k, v in d.items()}  # type: ignore[call-overload]
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{source}: '{key}' must map integer ids to integer ids") from exc
+
+
+def _track_groups(raw: object, things: tuple[int, ...], source: str) -> tuple[tuple[int, ...], ...]:
+    """Validate ``track_groups``: lists of thing train ids, each id in at most one group."""
+    try:
+        groups = tuple(tuple(int(c) for c in g) for g in raw)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: 'track_groups' must be a list of lists of train ids") from exc
+    flat = [c for g in groups for c in g]
+    if len(flat) != len(set(flat)):
+        raise ConfigError(f"{source}: a class appears in more than one of 'track_groups' {groups}")
+    if not set(flat) <= set(things):
+        raise ConfigError(
+            f"{source}: 'track_groups' name ids that are not things: {sorted(set(flat) - set(things))}"
+        )
+    return groups
 
 
 def load_label_map(name_or_path: str | Path = "semantic-kitti") -> LabelMap:

@@ -1,11 +1,20 @@
-"""The "DS-Net + tracking" baseline: single-frame instances linked frame to frame.
+"""Greedy centre tracking across frames — the tracking algorithm of every method (``track``).
 
-Each frame's 3D instances (from k = 1 DS-Net) are reduced to centroids in world coordinates
-(the LiDAR-frame pose compensates ego motion). Live tracks predict where they are now — the last
-centroid, plus a constant-velocity step when enabled — and are associated with the detections
-greedily, closest pair first (MOST-style), within ``max_distance`` metres and only between
-compatible classes. Unmatched detections start tracks with ids from one counter per sequence;
-a track unseen for more than ``max_age`` frames ends and its id is never handed out again.
+Each frame's instances are reduced to centres in world coordinates (the LiDAR-frame pose removes
+ego motion): MOST's detected modal centres, or the centroids of any method's per-frame instances.
+Every live track is compared with every detection of a compatible class (the label map's
+``track_groups``):
+
+- with a learned velocity (MOST), the detection is moved back by its velocity to the time of the
+  track's last sighting and compared with the track's last position (CenterPoint's association:
+  the previous frame's centres against this frame's centres displaced by the predicted velocity);
+- without one, the track's position is predicted forward with its constant velocity (the
+  difference of its last two positions), or stays where it was last seen.
+
+Pairs within ``max_distance`` metres are taken greedily, closest first. Unmatched detections
+start tracks with ids from one counter per sequence; a track unseen for more than ``max_age``
+frames ends and its id is never handed out again. :meth:`Tracker.state_dict` /
+:meth:`Tracker.from_state` carry everything, so a resumed run continues identically.
 """
 
 from __future__ import annotations
@@ -18,14 +27,12 @@ import numpy as np
 from dsnet_core.labels import LabelMap, load_label_map
 from dsnet_core.temporal.stitching import MAX_ID, StitchError
 
-# SemanticKITTI train ids that may be confused frame to frame: vehicles, two-wheelers with and
-# without rider, persons.
-KITTI_COMPATIBLE: tuple[tuple[int, ...], ...] = ((1, 4, 5), (2, 7), (3, 8), (6,))
+STATE_VERSION = 2
 
 
 @dataclass
 class Track:
-    """A live track: world centroid ``(x, y, z)`` metres, velocity metres per time unit."""
+    """A live track: world position (x, y, z) metres at ``time``, world velocity (m per time unit)."""
 
     id: int
     group: int
@@ -63,15 +70,14 @@ def instance_centroids(
 
 
 class Tracker:
-    """Greedy centroid tracker for one sequence; ``add_frame`` returns the frame's final label.
+    """Greedy centre tracker for one sequence.
 
     Args:
-        label_map: dataset label map (default SemanticKITTI).
-        max_distance: association gate between prediction and detection, metres.
+        label_map: dataset label map (default SemanticKITTI); its ``track_groups`` gate classes.
+        max_distance: association gate, metres.
         max_age: frames a track may go unseen and still be matched.
-        constant_velocity: predict with the track's last velocity.
-        compatible: groups of train ids that may be associated with each other (default
-            :data:`KITTI_COMPATIBLE`; a class in no group is compatible only with itself).
+        constant_velocity: without a learned velocity, predict with the track's last velocity.
+        compatible: groups of train ids overriding the label map's ``track_groups``.
     """
 
     def __init__(
@@ -81,18 +87,71 @@ class Tracker:
         max_distance: float = 2.0,
         max_age: int = 2,
         constant_velocity: bool = True,
-        compatible: Sequence[Sequence[int]] = KITTI_COMPATIBLE,
+        compatible: Sequence[Sequence[int]] | None = None,
     ) -> None:
         self.label_map = label_map or load_label_map("semantic-kitti")
         self.max_distance = float(max_distance)
         self.max_age = int(max_age)
         self.constant_velocity = bool(constant_velocity)
-        self._group = np.arange(self.label_map.num_classes) + 1000  # each class its own group
-        for g, classes in enumerate(compatible):
-            self._group[list(classes)] = g
+        if compatible is None:
+            self._group = self.label_map.track_group_of()
+        else:
+            self._group = np.arange(self.label_map.num_classes) + 1000  # each class its own group
+            for g, classes in enumerate(compatible):
+                self._group[list(classes)] = g
         self.next_id = 1
         self.n_frames = 0
         self.tracks: list[Track] = []
+
+    def add_detections(
+        self,
+        centres: np.ndarray,
+        classes: np.ndarray,
+        pose: np.ndarray | None = None,
+        time: float | None = None,
+        velocities: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Associate one frame's detections with the live tracks.
+
+        Args:
+            centres: ``(M, 3)`` centres in the sensor frame, metres.
+            classes: ``(M,) int`` train ids.
+            pose: ``(4, 4)`` LiDAR-frame pose (sensor → world); None = identity.
+            time: frame time (seconds or frame index); None = the frame's index in this sequence.
+            velocities: ``(M, 2)`` learned (x, y) velocities in the sensor frame (metres per time
+                unit), or None for the constant-velocity model.
+
+        Returns:
+            ``(M,) int64`` track ids.
+
+        Raises:
+            StitchError: more than 65 535 ids in the sequence.
+        """
+        t = float(self.n_frames if time is None else time)
+        cent = np.asarray(centres, np.float64).reshape(-1, 3)
+        vel = None
+        rot = np.eye(3) if pose is None else np.asarray(pose, np.float64)[:3, :3]
+        if pose is not None:
+            cent = cent @ rot.T + np.asarray(pose, np.float64)[:3, 3]
+        if velocities is not None:
+            v = np.zeros((cent.shape[0], 3))
+            v[:, :2] = np.asarray(velocities, np.float64).reshape(-1, 2)
+            vel = v @ rot.T
+        groups = self._group[np.asarray(classes, np.int64)]
+        assigned = self._associate(cent, groups, vel, t)
+        tid = np.zeros(cent.shape[0], np.int64)
+        for det in range(cent.shape[0]):
+            if det in assigned:
+                tid[det] = assigned[det]
+                continue
+            if self.next_id > MAX_ID:
+                raise StitchError(f"more than {MAX_ID} instance ids in one sequence")
+            tid[det] = self.next_id
+            v0 = None if vel is None else tuple(float(x) for x in vel[det])
+            self.tracks.append(Track(self.next_id, int(groups[det]), tuple(cent[det]), v0, t))
+            self.next_id += 1
+        self.n_frames += 1
+        return tid
 
     def add_frame(
         self,
@@ -103,61 +162,40 @@ class Tracker:
         time: float | None = None,
         thing: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Associate one frame's instances with the live tracks.
+        """Track one frame's per-point instances by their centroids (constant velocity).
 
         Args:
             xyz: ``(N, 3)`` points in the sensor frame, metres.
             semantic: ``(N,) int`` train ids. instance: ``(N,) int`` raw ids, 0 = none.
-            pose: ``(4, 4)`` LiDAR-frame pose (sensor → world); None = identity (no ego motion).
-            time: frame time (seconds or frame index); None = the frame's index in this sequence.
-            thing: ``(N,) bool``, or None to derive it from ``semantic``.
+            pose, time: as :meth:`add_detections`. thing: ``(N,) bool``, or None from ``semantic``.
 
         Returns:
             ``(N,) uint32`` label: raw semantic | track id << 16.
-
-        Raises:
-            StitchError: more than 65 535 ids in the sequence.
         """
         semantic = np.asarray(semantic, dtype=np.int64)
         instance = np.asarray(instance, dtype=np.int64)
         thing = self.label_map.is_thing()[semantic] if thing is None else np.asarray(thing, dtype=bool)
-        t = float(self.n_frames if time is None else time)
         ids, cent, cls = instance_centroids(np.asarray(xyz)[:, :3], semantic, instance, thing)
-        if pose is not None:
-            cent = cent @ np.asarray(pose)[:3, :3].T + np.asarray(pose)[:3, 3]
-        groups = self._group[cls]
-        assigned = self._associate(cent, groups, t)
-        tid = np.zeros(ids.size, np.int64)
-        for det, track in assigned.items():
-            tid[det] = track.id
-        for det in range(ids.size):
-            if det not in assigned:
-                if self.next_id > MAX_ID:
-                    raise StitchError(f"more than {MAX_ID} instance ids in one sequence")
-                tid[det] = self.next_id
-                self.tracks.append(Track(self.next_id, int(groups[det]), tuple(cent[det]), None, t))
-                self.next_id += 1
-        self.n_frames += 1
-        out = np.zeros(instance.shape, np.int64)
-        sel = thing & (instance > 0)
-        out[sel] = tid[np.searchsorted(ids, instance[sel])]
-        return self.label_map.to_raw(semantic) | (out.astype(np.uint32) << 16)
+        tid = self.add_detections(cent, cls, pose, time)
+        return relabel(self.label_map, semantic, instance, ids, tid, thing)
 
-    def _predict(self, track: Track, t: float) -> np.ndarray:
-        p = np.asarray(track.position)
-        if self.constant_velocity and track.velocity is not None:
-            p = p + np.asarray(track.velocity) * (t - track.time)
-        return p
-
-    def _associate(self, cent: np.ndarray, groups: np.ndarray, t: float) -> dict[int, Track]:
+    def _associate(
+        self, cent: np.ndarray, groups: np.ndarray, vel: np.ndarray | None, t: float
+    ) -> dict[int, int]:
         pairs = []
         for ti, track in enumerate(self.tracks):
-            pred = self._predict(track, t)
-            dist = np.linalg.norm(cent - pred, axis=1) if cent.size else np.zeros(0)
+            dt = t - track.time
+            if vel is not None:  # detections displaced back to the track's last sighting
+                dist = np.linalg.norm(cent - vel * dt - np.asarray(track.position), axis=1)
+            else:
+                pred = np.asarray(track.position)
+                if self.constant_velocity and track.velocity is not None:
+                    pred = pred + np.asarray(track.velocity) * dt
+                dist = np.linalg.norm(cent - pred, axis=1) if cent.size else np.zeros(0)
             for det in np.flatnonzero((dist <= self.max_distance) & (groups == track.group)).tolist():
                 pairs.append((float(dist[det]), track.id, ti, det))
         pairs.sort()
-        assigned: dict[int, Track] = {}
+        assigned: dict[int, int] = {}
         used: set[int] = set()
         for _, _, ti, det in pairs:
             if ti in used or det in assigned:
@@ -165,9 +203,12 @@ class Tracker:
             track = self.tracks[ti]
             dt = t - track.time
             new = cent[det]
-            track.velocity = tuple((new - np.asarray(track.position)) / dt) if dt > 0 else track.velocity
+            if vel is not None:
+                track.velocity = tuple(float(x) for x in vel[det])
+            elif dt > 0:
+                track.velocity = tuple((new - np.asarray(track.position)) / dt)
             track.position, track.time, track.misses = tuple(new), t, 0
-            assigned[det] = track
+            assigned[det] = track.id
             used.add(ti)
         kept = []
         for ti, track in enumerate(self.tracks):
@@ -181,6 +222,8 @@ class Tracker:
     def state_dict(self) -> dict:
         """JSON-serialisable state; :meth:`from_state` continues identically."""
         return {
+            "version": STATE_VERSION,
+            "label_map": self.label_map.name,
             "next_id": self.next_id,
             "n_frames": self.n_frames,
             "tracks": [asdict(t) for t in self.tracks],
@@ -194,8 +237,18 @@ class Tracker:
 
     @classmethod
     def from_state(cls, state: Mapping, label_map: LabelMap | None = None) -> Tracker:
-        """Rebuild a tracker from :meth:`state_dict` output."""
+        """Rebuild a tracker from :meth:`state_dict` output.
+
+        Raises:
+            StitchError: an unknown state version or another label map's state.
+        """
+        if state.get("version", 1) not in (1, STATE_VERSION):
+            raise StitchError(f"track state version {state.get('version')!r}, expected {STATE_VERSION}")
         tr = cls(label_map, **state["config"])
+        if "label_map" in state and state["label_map"] != tr.label_map.name:
+            raise StitchError(
+                f"track state is for label map {state['label_map']!r}, not {tr.label_map.name!r}"
+            )
         tr._group = np.asarray(state["group"], dtype=np.int64)
         tr.next_id, tr.n_frames = int(state["next_id"]), int(state["n_frames"])
         for t in state["tracks"]:
@@ -205,3 +258,27 @@ class Tracker:
                 Track(int(t["id"]), int(t["group"]), pos, vel, float(t["time"]), int(t["misses"]))
             )
         return tr
+
+
+def relabel(
+    label_map: LabelMap,
+    semantic: np.ndarray,
+    instance: np.ndarray,
+    ids: np.ndarray,
+    track_ids: np.ndarray,
+    thing: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per-point label with track ids: ``(N,) uint32`` raw semantic | track id << 16.
+
+    Args:
+        semantic: ``(N,)`` train ids. instance: ``(N,)`` frame-local ids (0 = none).
+        ids: ``(M,)`` sorted frame-local ids that were tracked; track_ids: ``(M,)`` their track ids.
+        thing: ``(N,) bool`` points that may carry an id (default: thing classes).
+    """
+    semantic = np.asarray(semantic, np.int64)
+    instance = np.asarray(instance, np.int64)
+    thing = label_map.is_thing()[semantic] if thing is None else thing
+    out = np.zeros(instance.shape, np.int64)
+    sel = thing & (instance > 0) & np.isin(instance, ids)
+    out[sel] = np.asarray(track_ids, np.int64)[np.searchsorted(ids, instance[sel])]
+    return label_map.to_raw(semantic) | (out.astype(np.uint32) << 16)

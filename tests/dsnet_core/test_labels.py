@@ -99,3 +99,26 @@ def test_binary_file_is_a_config_error(tmp_path):
     f.write_bytes(b"labels: \xff\xfe\x00")
     with pytest.raises(ConfigError, match=r"map\.yaml: not a text file"):
         load_label_map(f)
+
+
+def test_track_groups(tmp_path):
+    lm = load_label_map("semantic-kitti")
+    assert lm.track_groups == ((1, 4, 5), (2, 7), (3, 8), (6,))
+    g = lm.track_group_of()
+    assert g[1] == g[4] == g[5] == 0 and g[2] == g[7] == 1 and g[6] == 3
+    assert len(set(g[[0, *range(9, 20)]].tolist())) == 12  # every other class alone
+    base = (
+        "labels: {0: u, 10: car, 30: person, 40: road}\n"
+        "learning_map: {0: 0, 10: 1, 30: 2, 40: 3}\nthings: [1, 2]\n"
+    )
+    for groups, msg in (
+        ("[[1, 2], [2]]", "more than one of 'track_groups'"),
+        ("[[1, 3]]", "not things: \\[3\\]"),
+        ("[car]", "must be a list of lists of train ids"),
+    ):
+        path = tmp_path / "m.yaml"
+        path.write_text(base + f"track_groups: {groups}\n")
+        with pytest.raises(ConfigError, match=msg):
+            load_label_map(path)
+    path.write_text(base)
+    assert len(set(load_label_map(path).track_group_of().tolist())) == 4  # each class alone

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from dsnet_core.labels import load_label_map
+from dsnet_core.temporal.stitching import StitchError
 from dsnet_core.temporal.tracking import Tracker, instance_centroids
 
 LM = load_label_map("semantic-kitti")
@@ -122,3 +123,68 @@ def test_resume_from_state(cut):
     first = run(t, objs[:cut], poses[:cut], rng)
     t = Tracker.from_state(json.loads(json.dumps(t.state_dict())), LM)
     assert first + run(t, objs[cut:], poses[cut:], rng) == ref
+
+
+def test_class_groups_come_from_the_label_map():
+    kitti = Tracker(LM)
+    assert kitti._group[[1, 4, 5]].tolist() == [kitti._group[1]] * 3 and kitti._group[6] != kitti._group[1]
+    nus = load_label_map("panoptic-nuscenes")
+    assert nus.track_groups == ((3, 4, 5, 9, 10), (2, 6), (7,), (1,), (8,))
+    g = Tracker(nus)._group
+    assert g[4] == g[10] == g[9] and g[2] == g[6] and len({g[4], g[2], g[7], g[1], g[8]}) == 5
+    # a car of one frame and a truck of the next share a track with nuScenes' groups too
+    car, truck = 4, 10
+    t = Tracker(nus)
+    first = t.add_detections(np.array([[10.0, 0, 0]]), np.array([car]))
+    second = t.add_detections(np.array([[10.5, 0, 0]]), np.array([truck]))
+    assert first.tolist() == second.tolist() == [1]
+
+
+def test_learned_velocity_associates_fast_objects_from_their_first_frame():
+    # a car at 25 m/s (2.5 m per 0.1 s frame, beyond the 2 m gate) seen from its first frame:
+    # the constant-velocity model has no velocity for a new track, so it never links it; the
+    # learned velocity displaces each detection back onto the previous position
+    centres = [np.array([[10.0 + 2.5 * f, 3.0, 0.0]]) for f in range(5)]
+    cls = np.array([CAR])
+    cv = Tracker(LM)
+    ids_cv = [cv.add_detections(c, cls, time=0.1 * f).tolist() for f, c in enumerate(centres)]
+    assert ids_cv == [[1], [2], [3], [4], [5]]
+    learned = Tracker(LM)
+    vel = np.array([[25.0, 0.0]])
+    ids = [
+        learned.add_detections(c, cls, time=0.1 * f, velocities=vel).tolist() for f, c in enumerate(centres)
+    ]
+    assert ids == [[1]] * 5
+    # velocities are in the sensor frame: with the ego turned 90°, the same world motion is -y
+    turned = Tracker(LM)
+    pose = yaw_pose(np.pi / 2, 0.0, 0.0)
+    world = [np.array([[10.0 + 2.5 * f, 3.0, 0.0]]) for f in range(3)]
+    inv = np.linalg.inv(pose)
+    sensor = [w @ inv[:3, :3].T + inv[:3, 3] for w in world]
+    v_sensor = np.array([[0.0, -25.0]])
+    got = [turned.add_detections(s, cls, pose, 0.1 * f, v_sensor).tolist() for f, s in enumerate(sensor)]
+    assert got == [[1]] * 3
+
+
+def test_learned_velocity_bridges_occlusion_and_state_round_trips():
+    vel = np.array([[12.0, 0.0]])
+    t = Tracker(LM, max_age=2)
+    out = []
+    for f in range(8):
+        if f in (3, 4):
+            out.append(
+                t.add_detections(
+                    np.zeros((0, 3)), np.zeros(0, np.int64), time=0.1 * f, velocities=np.zeros((0, 2))
+                ).tolist()
+            )
+            continue
+        if f == 5:
+            t = Tracker.from_state(json.loads(json.dumps(t.state_dict())), LM)
+        out.append(
+            t.add_detections(
+                np.array([[1.2 * f, 0.0, 0.0]]), np.array([CAR]), time=0.1 * f, velocities=vel
+            ).tolist()
+        )
+    assert out == [[1], [1], [1], [], [], [1], [1], [1]]
+    with pytest.raises(StitchError, match="label map 'panoptic-nuscenes'"):
+        Tracker.from_state({**t.state_dict(), "label_map": "panoptic-nuscenes"}, LM)

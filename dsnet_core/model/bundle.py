@@ -32,6 +32,8 @@ from dsnet_core.model.checkpoint import (
 
 BUNDLED_NAME = "tiny"
 BUNDLED_4D_NAME = "tiny-4d"
+#: bundled MOST models: the accumulated-input one (k = 3) and, when present, a single-scan one
+BUNDLED_MOST_NAMES = {3: "most", 1: "most-1"}
 
 
 def bundled_dir(scans: int = 1) -> Path:
@@ -50,6 +52,17 @@ def bundled_checkpoint(scans: int = 1) -> Path | None:
     """The bundled demo checkpoint for ``scans``-scan volumes (the 4D one when k > 1 and it is
     bundled, else the single-scan one), or None when no trained model is bundled."""
     for path in (bundled_dir(scans), bundled_dir(1)):
+        if _is_checkpoint(path):
+            return path
+    return None
+
+
+def bundled_most_checkpoint(scans: int = 3) -> Path | None:
+    """The bundled MOST checkpoint for ``scans``-scan input: the single-scan one for k = 1 when it
+    is bundled, else the accumulated-input one; None when no MOST model is bundled."""
+    root = Path(__file__).resolve().parents[1] / "data" / "models"
+    names = [BUNDLED_MOST_NAMES[1]] if scans <= 1 else []
+    for path in [root / n for n in [*names, BUNDLED_MOST_NAMES[3]]]:
         if _is_checkpoint(path):
             return path
     return None

@@ -139,3 +139,28 @@ def test_distance_membership_prefers_the_nearer_centre():
         2, roi_pairs(xyz, np.array([CAR, CAR]), det), distance_membership(xyz, det), 0.0
     )
     assert inst.tolist() == [1, 2]
+
+
+def test_predict_wires_network_detections_and_pointsegmlp():
+    from dsnet_core.most.network import MostNet
+    from dsnet_core.most.predict import predict
+    from tests.dsnet_core.most.test_network import CFG
+
+    torch.manual_seed(0)
+    net = MostNet(CFG)
+    with torch.no_grad():
+        net.bev_head.heatmap.bias.fill_(3.0)  # every cell confident: NMS keeps the local maxima
+    xyz, _, _ = scene(np.random.default_rng(1))
+    cloud = np.concatenate(
+        [np.c_[xyz, np.zeros((len(xyz), 2))], np.c_[xyz[:100], np.zeros(100), np.full(100, 0.1)]]
+    )
+    cloud = torch.from_numpy(cloud.astype(np.float32))
+    for rule in ("mlp", "distance"):
+        pred = predict(net, cloud, len(xyz), InferenceSettings(rule=rule, max_detections=20))
+        assert pred.semantic.shape == pred.instance.shape == (len(xyz),)
+        n = int(pred.instance.max())
+        assert len(pred.detections) == n and np.unique(pred.instance[pred.instance > 0]).tolist() == list(
+            range(1, n + 1)
+        )
+        for i in range(1, n + 1):  # members carry their detection's class
+            assert (pred.semantic[pred.instance == i] == pred.detections.classes[i - 1]).all()

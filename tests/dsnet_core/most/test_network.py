@@ -26,14 +26,6 @@ BB = replace(PRESETS["tiny"], width=2, point_mlp=(8, 8), compress=4, grid=GRID)
 CFG = MostConfig(backbone=BB, bev=BevGrid(half_extent=12.0, cell=0.5), bev_channels=8, mem_widths=(16, 16, 8))
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def test_level_shapes_follow_the_unet_strides():
     assert level_shape((480, 360, 32), 2) == (120, 90, 8)
     assert level_shape((480, 360, 32), 4) == (30, 23, 8)

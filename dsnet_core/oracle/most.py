@@ -39,6 +39,7 @@ def oracle_most(
     k: int = 3,
     times: Sequence[float] | None = None,
     min_points: int = 1,
+    learned_velocity: bool = True,
     **tracker_kwargs,
 ) -> list[np.ndarray]:
     """Per-frame uint32 labels (raw semantic | track id << 16) of a sequence.
@@ -49,6 +50,8 @@ def oracle_most(
         rule: ``distance`` or ``mlp`` (then ``net`` runs on each frame's ``k``-scan input for the
             features PointSegMLP reads).
         min_points: instances with fewer points are not detected.
+        learned_velocity: hand the (ground-truth) velocities to the tracker; else it predicts with
+            its constant-velocity model.
     """
     times = list(np.arange(len(scans)) * 0.1 if times is None else times)
     sem_keys = [instance_keys(lab, label_map) for lab in labels]
@@ -74,6 +77,7 @@ def oracle_most(
         pred = panoptic(scan[:, :3].astype(np.float64), sem, det, settings, mlp)
         ids = np.arange(1, len(pred.detections) + 1)
         d = pred.detections
-        tid = tracker.add_detections(d.centres, d.classes, poses[f], times[f], d.velocity)
+        vel = d.velocity if learned_velocity else None
+        tid = tracker.add_detections(d.centres, d.classes, poses[f], times[f], vel)
         out.append(relabel(label_map, pred.semantic, pred.instance, ids, tid))
     return out

@@ -68,3 +68,8 @@ class MissingExtraError(DsnetError):
 
     def __init__(self, module: str, extra: str, what: str) -> None:
         super().__init__(f"{what} needs the Python package {module!r}: pip install 'dsnet-pipeline[{extra}]'")
+
+
+class CheckpointImportError(CheckpointError):
+    """A reference checkpoint cannot be imported: unsafe pickle, unknown/missing/mis-shaped keys,
+    or a sparse-weight layout that cannot be told apart."""

@@ -4,6 +4,14 @@ Layout (channels): context block C_in→w; down blocks w→2w→4w→8w→16w (s
 2,2,1 / 2,2,1); up blocks 16w→16w→8w→4w→2w back onto the skip sites; the dimension-decomposition
 refinement (three rank-1 kernels, sigmoid gates, multiplied with its input) concatenated with its
 input gives 4w channels per active voxel.
+
+``shared_rulebooks`` reproduces the networks trained by the reference code under spconv 1.x. There,
+submanifold layers that share an ``indice_key`` reuse the rulebook (neighbour table) built by the
+first of them, whatever their own kernel shape, and the kernel is read tap by tap in its flat
+(row-major) order. Every layer of a block therefore acts with the first layer's kernel: the context
+block with 1×3×3, each down block with 3×1×3, the three convolutions after each up-sampling with
+1×3×3 (the 3×3×3 one uses only its first 9 taps, the kx = 0 plane), the refinement with 3×1×1.
+The strided, inverse and 3×3×3 ``trans`` layers have keys of their own and are unaffected.
 """
 
 from __future__ import annotations
@@ -49,9 +57,11 @@ class ResContextBlock(nn.Module):
 class DownBlock(nn.Module):
     """Asymmetric residual block then a strided 3×3×3 sparse conv; returns (coarse, skip)."""
 
-    def __init__(self, cin: int, cout: int, stride: tuple[int, int, int], key: str) -> None:
+    def __init__(
+        self, cin: int, cout: int, stride: tuple[int, int, int], key: str, shared: bool = False
+    ) -> None:
         super().__init__()
-        self.res = ResContextBlock(cin, cout, first=K313, second=K133)
+        self.res = ResContextBlock(cin, cout, first=K313, second=K313 if shared else K133)
         self.pool = SparseConv3d(cout, cout, 3, stride=stride, padding=1, indice_key=key)
 
     def forward(self, x: SparseTensor) -> tuple[SparseTensor, SparseTensor]:
@@ -62,15 +72,12 @@ class DownBlock(nn.Module):
 class UpBlock(nn.Module):
     """3×3×3 conv, inverse conv onto the skip sites, add the skip, then 1×3×3, 3×1×3, 3×3×3."""
 
-    def __init__(self, cin: int, cout: int, key: str) -> None:
+    def __init__(self, cin: int, cout: int, key: str, shared: bool = False) -> None:
         super().__init__()
         self.trans = ConvBNAct(cin, cout, K333)
         self.up = SparseInverseConv3d(cout, cout, 3, indice_key=key)
-        self.c1, self.c2, self.c3 = (
-            ConvBNAct(cout, cout, K133),
-            ConvBNAct(cout, cout, K313),
-            ConvBNAct(cout, cout, K333),
-        )
+        kernels = (K133, K133, K133) if shared else (K133, K313, K333)
+        self.c1, self.c2, self.c3 = (ConvBNAct(cout, cout, k) for k in kernels)
 
     def forward(self, x: SparseTensor, skip: SparseTensor) -> SparseTensor:
         up = self.up(self.trans(x))
@@ -81,11 +88,11 @@ class UpBlock(nn.Module):
 class ReconBlock(nn.Module):
     """Dimension-decomposition refinement: σ(BN(3×1×1)) + σ(BN(1×3×1)) + σ(BN(1×1×3)), times the input."""
 
-    def __init__(self, channels: int) -> None:
+    def __init__(self, channels: int, shared: bool = False) -> None:
         super().__init__()
+        kernels = ((3, 1, 1),) * 3 if shared else ((3, 1, 1), (1, 3, 1), (1, 1, 3))
         self.branches = nn.ModuleList(
-            ConvBNAct(channels, channels, k, act=nn.Sigmoid(), bn_first=True)
-            for k in ((3, 1, 1), (1, 3, 1), (1, 1, 3))
+            ConvBNAct(channels, channels, k, act=nn.Sigmoid(), bn_first=True) for k in kernels
         )
 
     def forward(self, x: SparseTensor) -> SparseTensor:
@@ -99,30 +106,31 @@ class AsymmetricUNet(nn.Module):
     Args:
         in_channels: voxel input channels (16 after the point MLP's compression).
         width: base width ``w``.
+        shared_rulebooks: act like the reference under spconv 1.x (see the module docstring).
     """
 
-    def __init__(self, in_channels: int = 16, width: int = 32) -> None:
+    def __init__(self, in_channels: int = 16, width: int = 32, shared_rulebooks: bool = False) -> None:
         super().__init__()
-        w = width
+        w, shared = width, shared_rulebooks
         self.out_channels = 4 * w
-        self.context = ResContextBlock(in_channels, w)
+        self.context = ResContextBlock(in_channels, w, second=K133 if shared else K313)
+        down = (
+            (w, 2 * w, (2, 2, 2)),
+            (2 * w, 4 * w, (2, 2, 2)),
+            (4 * w, 8 * w, (2, 2, 1)),
+            (8 * w, 16 * w, (2, 2, 1)),
+        )
         self.down = nn.ModuleList(
-            [
-                DownBlock(w, 2 * w, (2, 2, 2), "down2"),
-                DownBlock(2 * w, 4 * w, (2, 2, 2), "down3"),
-                DownBlock(4 * w, 8 * w, (2, 2, 1), "down4"),
-                DownBlock(8 * w, 16 * w, (2, 2, 1), "down5"),
-            ]
+            DownBlock(cin, cout, stride, f"down{i + 2}", shared) for i, (cin, cout, stride) in enumerate(down)
         )
-        self.up = nn.ModuleList(
-            [
-                UpBlock(16 * w, 16 * w, "down5"),
-                UpBlock(16 * w, 8 * w, "down4"),
-                UpBlock(8 * w, 4 * w, "down3"),
-                UpBlock(4 * w, 2 * w, "down2"),
-            ]
+        up = (
+            (16 * w, 16 * w, "down5"),
+            (16 * w, 8 * w, "down4"),
+            (8 * w, 4 * w, "down3"),
+            (4 * w, 2 * w, "down2"),
         )
-        self.recon = ReconBlock(2 * w)
+        self.up = nn.ModuleList(UpBlock(cin, cout, key, shared) for cin, cout, key in up)
+        self.recon = ReconBlock(2 * w, shared)
 
     def forward(self, x: SparseTensor) -> SparseTensor:
         x = self.context(x)

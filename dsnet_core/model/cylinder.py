@@ -1,12 +1,25 @@
 """Cylindrical voxelisation (Cylinder3D): points → (ρ, φ, z) cells, the 9 per-point features and
-the point↔voxel index maps. Grid size and bounds are configuration; nothing is densified."""
+the point↔voxel index maps. Grid size, bounds and cell convention are configuration; nothing is
+densified.
+
+Two cell conventions (:data:`CONVENTIONS`):
+
+- ``"ours"`` (default): cell = (max − min) / n, so the n cells tile [min, max]; features in float32.
+- ``"reference"``: the DS-Net / Cylinder3D data loaders' cell = (max − min) / (n − 1) (the last cell
+  only receives points clamped onto ``max``); cells and centres computed in float64 from the
+  float32 polar coordinates, the relative coordinates rounded to float32, as those loaders do.
+  A network trained by the reference code sees every voxel at these positions.
+"""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
+
+CONVENTIONS = ("ours", "reference")
 
 
 @dataclass(frozen=True)
@@ -17,30 +30,49 @@ class CylinderGrid:
         size: cells along (ρ, φ, z).
         min_bound: lower bounds (ρ metres, φ radians, z metres).
         max_bound: upper bounds; points outside are clamped into the edge cells.
+        convention: ``"ours"`` (cell = (max − min) / n) or ``"reference"`` ((max − min) / (n − 1)).
     """
 
     size: tuple[int, int, int] = (480, 360, 32)
     min_bound: tuple[float, float, float] = (3.0, -math.pi, -3.0)
     max_bound: tuple[float, float, float] = (50.0, math.pi, 1.5)
+    convention: str = "ours"
 
     def __post_init__(self) -> None:
         if len(self.size) != 3 or min(self.size) < 1:
             raise ValueError(f"grid size must be three positive ints, got {self.size}")
         if any(hi <= lo for lo, hi in zip(self.min_bound, self.max_bound, strict=True)):
             raise ValueError(f"grid bounds must satisfy min < max, got {self.min_bound}..{self.max_bound}")
+        if self.convention not in CONVENTIONS:
+            raise ValueError(
+                f"unknown grid convention {self.convention!r} (choose from {', '.join(CONVENTIONS)})"
+            )
+        if self.convention == "reference" and min(self.size) < 2:
+            raise ValueError(f"the reference convention needs at least 2 cells per axis, got {self.size}")
 
     @property
     def interval(self) -> tuple[float, float, float]:
-        """Cell size along (ρ, φ, z) in metres / radians."""
+        """Cell size along (ρ, φ, z) in metres / radians: (max − min) / n, or / (n − 1) for the
+        reference convention."""
+        cut = 1 if self.convention == "reference" else 0
         bounds = zip(self.min_bound, self.max_bound, self.size, strict=True)
-        return tuple((hi - lo) / n for lo, hi, n in bounds)
+        return tuple((hi - lo) / (n - cut) for lo, hi, n in bounds)
 
     def to_dict(self) -> dict:
-        return {"size": list(self.size), "min_bound": list(self.min_bound), "max_bound": list(self.max_bound)}
+        """Plain dict; ``convention`` appears only when not the default (older cards stay equal)."""
+        d = {"size": list(self.size), "min_bound": list(self.min_bound), "max_bound": list(self.max_bound)}
+        if self.convention != "ours":
+            d["convention"] = self.convention
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> CylinderGrid:
-        return cls(tuple(int(v) for v in d["size"]), tuple(d["min_bound"]), tuple(d["max_bound"]))
+        return cls(
+            tuple(int(v) for v in d["size"]),
+            tuple(d["min_bound"]),
+            tuple(d["max_bound"]),
+            str(d.get("convention", "ours")),
+        )
 
 
 @dataclass
@@ -89,6 +121,8 @@ def cylinder_features(points: torch.Tensor, grid: CylinderGrid) -> tuple[torch.T
     pts = points.to(torch.float32)
     x, y, z, r = pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 3]
     pol = torch.stack([torch.sqrt(x * x + y * y), torch.atan2(y, x), z], dim=1)
+    if grid.convention == "reference":
+        return _reference_cells(pts, grid)
     lo = torch.tensor(grid.min_bound, dtype=torch.float32, device=pts.device)
     hi = torch.tensor(grid.max_bound, dtype=torch.float32, device=pts.device)
     step = torch.tensor(grid.interval, dtype=torch.float32, device=pts.device)
@@ -98,6 +132,26 @@ def cylinder_features(points: torch.Tensor, grid: CylinderGrid) -> tuple[torch.T
     centre = (cells.to(torch.float32) + 0.5) * step + lo
     feats = torch.cat([pol - centre, pol, pts[:, :2], r[:, None]], dim=1)
     return cells, feats
+
+
+def _reference_cells(pts: torch.Tensor, grid: CylinderGrid) -> tuple[torch.Tensor, torch.Tensor]:
+    """The reference loaders' arithmetic: float32 polar coordinates from numpy's expressions (torch's
+    float32 ``sqrt(x*x + y*y)`` and ``atan2`` differ from numpy's by an ulp now and then), cells and
+    centres in float64 with cell (max − min) / (n − 1), relative coordinates rounded to float32."""
+    xyz = pts[:, :3].detach().cpu().numpy()
+    x, y = xyz[:, 0], xyz[:, 1]
+    pol_np = np.stack((np.sqrt(x**2 + y**2), np.arctan2(y, x), xyz[:, 2]), axis=1)
+    pol = torch.from_numpy(pol_np).to(pts.device)
+    f64 = dict(dtype=torch.float64, device=pts.device)
+    lo, hi = torch.tensor(grid.min_bound, **f64), torch.tensor(grid.max_bound, **f64)
+    step = torch.tensor(grid.interval, **f64)
+    pol64 = pol.to(torch.float64)
+    cells = torch.floor((torch.minimum(torch.maximum(pol64, lo), hi) - lo) / step).to(torch.int64)
+    size = torch.tensor(grid.size, dtype=torch.int64, device=pts.device)
+    cells = torch.minimum(torch.clamp_min(cells, 0), size - 1)
+    centre = (cells.to(torch.float32) + 0.5).to(torch.float64) * step + lo
+    rel = (pol64 - centre).to(torch.float32)
+    return cells, torch.cat([rel, pol, pts[:, :2], pts[:, 3:4]], dim=1)
 
 
 def voxelize(clouds: list[torch.Tensor], grid: CylinderGrid) -> Voxelized:

@@ -55,7 +55,9 @@ class DSNet(nn.Module):
         check_equivariant_grid(config.grid, config.equivariant)
         self.config = config
         self.point_encoder = PointEncoder(9 + config.prior_channels, config.point_mlp, config.compress)
-        self.backbone = AsymmetricUNet(config.compress, config.width)
+        self.backbone = AsymmetricUNet(
+            config.compress, config.width, shared_rulebooks=config.rulebooks == "spconv1-shared"
+        )
         self.sem_head = (
             SemanticHead(self.backbone.out_channels, config.num_classes) if config.semantic_head else None
         )

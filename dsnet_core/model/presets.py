@@ -1,4 +1,6 @@
-"""Model configuration and the width presets (``tiny`` for CI and the demo, ``small``, ``paper``)."""
+"""Model configuration and the presets: widths ``tiny`` (CI and the demo), ``small``, ``paper``, and the
+shapes of the released reference networks, ``reference`` (DS-Net / 4D-DS-Net as trained with spconv 1.x)
+and ``cylinder3d`` (Cylinder3D's semantic network), which the checkpoint importer targets."""
 
 from __future__ import annotations
 
@@ -6,6 +8,13 @@ from dataclasses import asdict, dataclass, field
 
 from dsnet_core.errors import ConfigError
 from dsnet_core.model.cylinder import CylinderGrid
+
+#: How the backbone's submanifold convolutions find their neighbours.
+#: ``"per-layer"``: every layer with its own kernel shape (the architecture as declared).
+#: ``"spconv1-shared"``: spconv 1.x's behaviour, which the reference networks were trained with:
+#: layers sharing an ``indice_key`` reuse the rulebook of the first one, so every layer of a block
+#: acts with the first layer's kernel shape (see ``dsnet_core/model/backbone.py``).
+RULEBOOKS = ("per-layer", "spconv1-shared")
 
 
 @dataclass(frozen=True)
@@ -25,6 +34,7 @@ class ModelConfig:
             its semantics are the prior's).
         equivariant: ``n`` of the C_n lifting (``dsnet_core.model.equivariant``); 1 = plain.
         pooling: invariant pooling of the semantic logits over the n rotations, "mean" or "max".
+        rulebooks: one of :data:`RULEBOOKS`.
     """
 
     width: int = 32
@@ -37,8 +47,11 @@ class ModelConfig:
     semantic_head: bool = True
     equivariant: int = 1
     pooling: str = "mean"
+    rulebooks: str = "per-layer"
 
     def __post_init__(self) -> None:
+        if self.rulebooks not in RULEBOOKS:
+            raise ConfigError(f"unknown rulebooks '{self.rulebooks}' (choose from {', '.join(RULEBOOKS)})")
         if self.prior_channels < 0:
             raise ConfigError(f"prior_channels must be >= 0, got {self.prior_channels}")
         if self.equivariant < 1:
@@ -47,8 +60,8 @@ class ModelConfig:
             raise ConfigError(f"unknown invariant pooling '{self.pooling}' (choose {', '.join(POOLINGS)})")
 
     def to_dict(self) -> dict:
-        """The architecture as a card records it. The D-PLS and equivariant fields appear only when
-        they differ from a plain DS-Net's, so cards written before they existed compare equal."""
+        """The architecture as a card records it. The D-PLS, equivariant and rulebooks fields appear
+        only when they differ from a plain DS-Net's, so cards written before they existed compare equal."""
         d = asdict(self)
         d["point_mlp"] = list(self.point_mlp)
         d["grid"] = self.grid.to_dict()
@@ -74,13 +87,40 @@ class ModelConfig:
 
 
 POOLINGS = ("mean", "max")
-_OPTIONAL = {"prior_channels": 0, "semantic_head": True, "equivariant": 1, "pooling": "mean"}
+_OPTIONAL = {
+    "prior_channels": 0,
+    "semantic_head": True,
+    "equivariant": 1,
+    "pooling": "mean",
+    "rulebooks": "per-layer",
+}
+
+#: DS-Net's released networks (hongfz16/DS-Net cfgs/release/*.yaml): grid 480×360×32 over
+#: ρ 3..50 m, φ ±π, z −3..1.5 m with the reference cell convention, spconv 1.x rulebooks.
+REFERENCE = ModelConfig(
+    width=32,
+    point_mlp=(64, 128, 256, 64),
+    grid=CylinderGrid(convention="reference"),
+    rulebooks="spconv1-shared",
+)
+#: Cylinder3D's released SemanticKITTI network (xinge008/Cylinder3D config/semantickitti.yaml):
+#: point MLP output 256, grid over ρ 0..50 m, φ ±3.1415926, z −4..2 m.
+CYLINDER3D = ModelConfig(
+    width=32,
+    point_mlp=(64, 128, 256, 256),
+    grid=CylinderGrid(
+        min_bound=(0.0, -3.1415926, -4.0), max_bound=(50.0, 3.1415926, 2.0), convention="reference"
+    ),
+    rulebooks="spconv1-shared",
+)
 
 
 PRESETS: dict[str, ModelConfig] = {
     "tiny": ModelConfig(width=4, point_mlp=(32, 64, 64, 32)),
     "small": ModelConfig(width=8, point_mlp=(64, 128, 128, 64)),
     "paper": ModelConfig(width=32),
+    "reference": REFERENCE,
+    "cylinder3d": CYLINDER3D,
 }
 
 

@@ -63,5 +63,5 @@ def test_gradients_reach_every_parameter():
 
 
 def test_presets_exist():
-    assert set(PRESETS) == {"tiny", "small", "paper"}
+    assert set(PRESETS) == {"tiny", "small", "paper", "reference", "cylinder3d"}
     assert PRESETS["paper"].width == 32 and PRESETS["paper"].grid == CylinderGrid()

@@ -43,6 +43,7 @@ from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.train import commit
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
+from dsnet_core.train.finetune import early_stop, holdout_split, volume_name
 from dsnet_core.train.metrics import ConfusionMeter
 from dsnet_core.train.shifting import (
     clusterer_for,
@@ -76,6 +77,13 @@ class TrainConfig:
             epochs) or "constant". The rate is a function of the epoch index only, so a resumed run
             trains exactly as an uninterrupted one.
         min_lr_ratio: the cosine schedule's floor as a fraction of ``lr``.
+        freeze_backbone: fine-tuning: the semantic stage trains only the semantic head (point MLP
+            and U-Net frozen, their batch-norm statistics fixed); False trains everything.
+        holdout: fraction of the training volumes held back for validation (seeded choice, at
+            least one when there are two or more); 0 validates on the given validation data.
+        patience: early stop: end a stage after this many epochs without a better validation
+            score (mIoU for the semantic stage, offset L1 for the instance head) and keep the best
+            epoch's weights; 0 runs every epoch.
     """
 
     stage: str = "all"
@@ -88,10 +96,17 @@ class TrainConfig:
     device: str = "cpu"
     schedule: str = "cosine"
     min_lr_ratio: float = 0.02
+    freeze_backbone: bool = False
+    holdout: float = 0.0
+    patience: int = 0
 
     def __post_init__(self) -> None:
         if self.schedule not in ("cosine", "constant"):
             raise ConfigError(f"unknown learning-rate schedule '{self.schedule}' (cosine or constant)")
+        if not 0.0 <= self.holdout < 1.0:
+            raise ConfigError(f"holdout must be a fraction in [0, 1), got {self.holdout}")
+        if self.patience < 0:
+            raise ConfigError(f"patience must be >= 0, got {self.patience}")
 
     def epoch_lr(self, epoch: int, total: int) -> float:
         """Learning rate of (0-based) ``epoch`` out of ``total`` in a stage."""
@@ -147,9 +162,14 @@ class Trainer:
         self.device = torch.device(config.device)
         self.reader, self.val_reader = reader, val_reader
         self.train_vols = volume_refs(reader, sequences, config.scans)
-        self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
         if not self.train_vols:
             raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
+        if config.holdout > 0:
+            self.train_vols, self.val_vols = holdout_split(self.train_vols, config.holdout, config.seed)
+            self.val_reader = val_reader = reader
+            val_sequences = sorted({v[-1].sequence for v in self.val_vols})
+        else:
+            self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
         if commit.recover(self.out):
             log.info("%s: finished or discarded the epoch a kill interrupted", self.out)
         exists = (self.out / CARD).is_file()
@@ -190,6 +210,8 @@ class Trainer:
                     "class_points": counts.tolist(),
                     "val_root": str(val_reader.root),
                     "val_sequences": list(val_sequences),
+                    "frames": [volume_name(v) for v in self.train_vols],
+                    **({"val_frames": [volume_name(v) for v in self.val_vols]} if config.holdout else {}),
                     **({"init_from": source} if source else {}),
                 },
                 epochs={},
@@ -204,7 +226,7 @@ class Trainer:
         """Train every pending epoch of every stage; returns the final model card."""
         for stage in self.stages:
             done, total = self._valid_epochs(stage), self.cfg.epochs.get(stage, 0)
-            if done >= total:
+            if done >= total or self._stopped_early(stage, done):
                 continue
             if stage == "shift":
                 self._run_shift(done, total)
@@ -224,7 +246,13 @@ class Trainer:
                 self.card.epochs[stage] = epoch + 1
                 self._save(stage, epoch + 1, opt)
                 log.info("%s epoch %d: loss %.4f, val mIoU %.4f", stage, epoch + 1, loss, record["val_miou"])
+                if self.cfg.patience and early_stop(self, stage, epoch + 1, total):
+                    break
         return self.card
+
+    def _stopped_early(self, stage: str, done: int) -> bool:
+        stop = self.card.training_data.get("early_stop", {}).get(stage)
+        return bool(stop) and stop.get("stopped_after") == done
 
     def _valid_epochs(self, stage: str) -> int:
         """Completed epochs of ``stage`` that still hold: those recorded after the last epoch of an
@@ -290,7 +318,8 @@ class Trainer:
         head = stage == "offset"
         for name, p in self.model.named_parameters():
             instance = name.startswith(INSTANCE_PARAMS)
-            p.requires_grad_(instance if head else not instance)
+            semantic = name.startswith("sem_head.") if self.cfg.freeze_backbone else not instance
+            p.requires_grad_(instance if head else semantic)
         params = [p for p in self.model.parameters() if p.requires_grad]
         return torch.optim.Adam(params, lr=self.cfg.lr)
 
@@ -299,6 +328,9 @@ class Trainer:
         if stage == "offset":  # frozen backbone: batch-norm statistics stay fixed
             for mod in (self.model.point_encoder, self.model.backbone, self.model.sem_head):
                 mod.eval()
+        elif self.cfg.freeze_backbone:
+            self.model.point_encoder.eval()
+            self.model.backbone.eval()
 
     def _train_epoch(
         self, stage: str, epoch: int, opt: torch.optim.Optimizer, on_step: StepCallback | None

@@ -1,0 +1,75 @@
+"""Fine-tuning on a few corrected frames (5–50): a seeded held-back validation part and early
+stopping that keeps the best epoch's weights.
+
+The best weights of a running stage are kept in ``CKPT/best_<stage>.safetensors`` so that an
+interrupted run resumes with them; the card's ``training_data["early_stop"][stage]`` records the
+best epoch, the epoch the stage ended after and the score.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from safetensors.torch import load_file
+
+from dsnet_core.io.reader import FrameRef
+from dsnet_core.model.checkpoint import save_checkpoint, save_tensors
+
+if TYPE_CHECKING:
+    from dsnet_core.train.loop import Trainer
+
+#: per stage: the validation score and whether higher is better
+SCORES = {"semantic": ("val_miou", True), "offset": ("val_offset_l1", False)}
+
+
+def volume_name(refs: list[FrameRef]) -> str:
+    """``"SS/NNNNNN"`` of a volume's reference (last) frame."""
+    return f"{refs[-1].sequence}/{refs[-1].frame_id}"
+
+
+def holdout_split(
+    volumes: list[list[FrameRef]], fraction: float, seed: int
+) -> tuple[list[list[FrameRef]], list[list[FrameRef]]]:
+    """Hold back ``round(fraction · n)`` volumes (at least 1 when n ≥ 2, never all) for validation.
+
+    Returns:
+        (training volumes, held-back volumes), each in the input order; the choice depends only on
+        ``seed`` and the volumes' names.
+    """
+    n = len(volumes)
+    k = min(n - 1, max(1 if n >= 2 else 0, round(fraction * n)))
+    names = sorted(volume_name(v) for v in volumes)
+    chosen = set(np.random.default_rng([seed, n]).permutation(names)[:k].tolist())
+    train = [v for v in volumes if volume_name(v) not in chosen]
+    return train, [v for v in volumes if volume_name(v) in chosen]
+
+
+def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
+    """After ``epoch`` (1-based) of ``stage``: keep the best weights; True when the stage should stop.
+
+    At the stage's end or when ``trainer.cfg.patience`` epochs passed without a better score, the
+    best epoch's weights go back into the model and the checkpoint.
+    """
+    name, higher = SCORES[stage]
+    records = [m for m in trainer.card.metrics if m["stage"] == stage][-epoch:]
+    scores = [float(m.get(name, math.nan)) for m in records]
+    key = [(-s if higher else s) if math.isfinite(s) else math.inf for s in scores]
+    best = int(np.argmin(key)) + 1  # the first best epoch
+    best_file = trainer.out / f"best_{stage}.safetensors"
+    if best == epoch:
+        save_tensors(trainer.model.state_dict(), best_file)
+    if epoch - best < trainer.cfg.patience and epoch < total:
+        return False
+    if best != epoch and best_file.is_file():
+        trainer.model.load_state_dict(load_file(str(best_file), device=str(trainer.device)))
+    trainer.card.training_data.setdefault("early_stop", {})[stage] = {
+        "best_epoch": best,
+        "stopped_after": epoch,
+        "score": name,
+        "value": scores[best - 1],
+    }
+    save_checkpoint(trainer.out, trainer.model, trainer.card)
+    best_file.unlink(missing_ok=True)
+    return epoch < total

@@ -1,0 +1,65 @@
+"""Fine-tuning options: frozen backbone, a held-back validation part, early stopping."""
+
+import pytest
+import torch
+
+from dsnet_core.errors import ConfigError
+from dsnet_core.io.semantickitti import SemanticKittiReader
+from dsnet_core.model.checkpoint import load_checkpoint
+from dsnet_core.train.data import volume_refs
+from dsnet_core.train.finetune import holdout_split, volume_name
+from dsnet_core.train.loop import TrainConfig, Trainer
+from tests.dsnet_core.train.test_loop import LM, TINY, one_thread, trainer  # noqa: F401
+from tests.helpers.tiny_log import write_tiny_log
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    return write_tiny_log(tmp_path_factory.mktemp("log"), frames=5)
+
+
+def test_holdout_split_is_seeded_and_never_empty(log):
+    vols = volume_refs(SemanticKittiReader(log), ["00"])
+    train, val = holdout_split(vols, 0.2, seed=3)
+    assert len(val) == 1 and len(train) == 4
+    assert holdout_split(vols, 0.2, seed=3)[1] == val
+    assert {volume_name(v) for v in train} | {volume_name(v) for v in val} == {volume_name(v) for v in vols}
+    assert len(holdout_split(vols, 0.9, seed=0)[0]) == 1  # at least one volume left to train on
+    with pytest.raises(ConfigError, match="holdout"):
+        TrainConfig(holdout=1.0)
+
+
+def test_frozen_backbone_trains_only_the_semantic_head(log, tmp_path):
+    trainer(log, tmp_path / "parent", stage="semantic", epochs={"semantic": 1}).run()
+    parent, _ = load_checkpoint(tmp_path / "parent")
+    reader = SemanticKittiReader(log)
+    cfg = TrainConfig(augment=False, lr=0.01, stage="semantic", epochs={"semantic": 1}, freeze_backbone=True, holdout=0.2)
+    card = Trainer(
+        tmp_path / "ft", TINY, reader, ["00"], reader, ["00"], LM, cfg, init_from=tmp_path / "parent"
+    ).run()
+    child, _ = load_checkpoint(tmp_path / "ft")
+    before, after = parent.state_dict(), child.state_dict()
+    assert all(torch.equal(before[k], after[k]) for k in before if not k.startswith("sem_head."))
+    assert not torch.equal(before["sem_head.conv.weight"], after["sem_head.conv.weight"])
+    data = card.training_data
+    assert len(data["frames"]) == 4 and len(data["val_frames"]) == 1
+    assert not set(data["frames"]) & set(data["val_frames"])
+    assert data["init_from"]["weights_sha256"] == load_checkpoint(tmp_path / "parent")[1].weights_sha256
+
+
+def test_early_stop_keeps_the_best_epoch_and_resume_respects_it(log, tmp_path):
+    # a learning rate this high makes validation worse after the first epochs
+    kw = dict(stage="semantic", epochs={"semantic": 6}, patience=1, holdout=0.4, lr=0.5)
+    card = trainer(log, tmp_path, **kw).run()
+    stop = card.training_data["early_stop"]["semantic"]
+    scores = [m["val_miou"] for m in card.metrics]
+    assert stop["stopped_after"] == len(scores) and stop["value"] == max(scores)
+    assert stop["stopped_after"] - stop["best_epoch"] <= 1
+    assert not (tmp_path / "best_semantic.safetensors").exists()
+    assert stop["stopped_after"] < 6  # deterministic: seeded data, order and initialisation
+    model, _ = load_checkpoint(tmp_path)
+    check = trainer(log, tmp_path / "check", **kw)  # same seed: the same held-back volume
+    check.model = model
+    assert check.validate()["val_miou"] == pytest.approx(stop["value"], abs=1e-9)
+    again = trainer(log, tmp_path, resume=True, **kw).run()  # the stopped stage is not trained again
+    assert len(again.metrics) == len(card.metrics)

@@ -33,7 +33,9 @@ def test_frozen_backbone_trains_only_the_semantic_head(log, tmp_path):
     trainer(log, tmp_path / "parent", stage="semantic", epochs={"semantic": 1}).run()
     parent, _ = load_checkpoint(tmp_path / "parent")
     reader = SemanticKittiReader(log)
-    cfg = TrainConfig(augment=False, lr=0.01, stage="semantic", epochs={"semantic": 1}, freeze_backbone=True, holdout=0.2)
+    cfg = TrainConfig(
+        augment=False, lr=0.01, stage="semantic", epochs={"semantic": 1}, freeze_backbone=True, holdout=0.2
+    )
     card = Trainer(
         tmp_path / "ft", TINY, reader, ["00"], reader, ["00"], LM, cfg, init_from=tmp_path / "parent"
     ).run()

@@ -195,6 +195,11 @@ class Trainer:
                     "scans": parent.training_data.get("scans"),
                 }
                 log.info("fine-tuning from %s (epochs %s)", init_from, parent.epochs)
+                inherited = load_shift_weights(init_from)
+                if inherited is not None:  # kept unless this run trains the shift stage again
+                    self.out.mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
+                    source["shift_weights"] = "inherited"
             else:
                 self.model = DSNet(model_config).to(self.device)
             counts = class_counts(reader, self.train_vols, label_map)

@@ -5,6 +5,7 @@ import torch
 
 from dsnet_core.errors import ConfigError
 from dsnet_core.io.semantickitti import SemanticKittiReader
+from dsnet_core.model.bundle import load_shift_weights
 from dsnet_core.model.checkpoint import load_checkpoint
 from dsnet_core.train.data import volume_refs
 from dsnet_core.train.finetune import holdout_split, volume_name
@@ -47,6 +48,19 @@ def test_frozen_backbone_trains_only_the_semantic_head(log, tmp_path):
     assert len(data["frames"]) == 4 and len(data["val_frames"]) == 1
     assert not set(data["frames"]) & set(data["val_frames"])
     assert data["init_from"]["weights_sha256"] == load_checkpoint(tmp_path / "parent")[1].weights_sha256
+    assert "shift_weights" not in data["init_from"]  # the parent had none
+
+
+def test_fine_tune_inherits_the_parents_shifting_weights(log, tmp_path):
+    trainer(log, tmp_path / "p", stage="all", epochs={"semantic": 1, "offset": 1, "shift": 1}).run()
+    reader = SemanticKittiReader(log)
+    cfg = TrainConfig(augment=False, lr=0.01, stage="semantic", epochs={"semantic": 1})
+    card = Trainer(
+        tmp_path / "c", TINY, reader, ["00"], reader, ["00"], LM, cfg, init_from=tmp_path / "p"
+    ).run()
+    assert card.training_data["init_from"]["shift_weights"] == "inherited"
+    parent, child = load_shift_weights(tmp_path / "p"), load_shift_weights(tmp_path / "c")
+    assert all(torch.equal(parent[k], child[k]) for k in parent)
 
 
 def test_early_stop_keeps_the_best_epoch_and_resume_respects_it(log, tmp_path):

@@ -30,7 +30,7 @@ from dsnet_core.errors import ConfigError
 from dsnet_core.model.cylinder import CylinderGrid, Voxelized, voxelize_cells
 
 _TOL = 1e-9
-OWN_CONVENTIONS = ("dsnet", "project", "default")
+OWN_CONVENTIONS = ("ours", "dsnet", "project", "default")  # CylinderGrid.convention "ours"
 """Names under which a grid config may record this project's cell convention, (max − min)/n."""
 
 

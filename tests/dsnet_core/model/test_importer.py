@@ -233,3 +233,12 @@ def test_ambiguous_layout_is_refused():
         == "spconv2"
     )
     assert math.prod((3, 3, 3)) == 27
+
+
+def test_equivariant_lifting_refuses_the_reference_grid_only():
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.model.equivariant import check_equivariant_grid
+
+    check_equivariant_grid(CylinderGrid(), 4)
+    with pytest.raises(ConfigError, match="convention"):
+        check_equivariant_grid(CylinderGrid(convention="reference"), 4)

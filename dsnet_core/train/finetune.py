@@ -1,9 +1,11 @@
 """Fine-tuning on a few corrected frames (5–50): a seeded held-back validation part and early
 stopping that keeps the best epoch's weights.
 
-The best weights of a running stage are kept in ``CKPT/best_<stage>.safetensors`` so that an
-interrupted run resumes with them; the card's ``training_data["early_stop"][stage]`` records the
-best epoch, the epoch the stage ended after and the score.
+The weights a stage starts from count as its epoch 0: a stage that never beats them (an instance
+head over-fitting four frames) ends with the weights it started from. The best weights of a running
+stage are kept in ``CKPT/best_<stage>.safetensors`` so that an interrupted run resumes with them;
+the card's ``training_data["early_stop"][stage]`` records the best epoch (0 = the incoming
+weights), the epoch the stage ended after and the score.
 """
 
 from __future__ import annotations
@@ -46,6 +48,14 @@ def holdout_split(
     return train, [v for v in volumes if volume_name(v) in chosen]
 
 
+def stage_start(trainer: Trainer, stage: str) -> None:
+    """Before a stage's first epoch: score the incoming weights (epoch 0) and keep them as the best."""
+    name, _ = SCORES[stage]
+    trainer.card.training_data.setdefault("stage_start", {})[stage] = float(trainer.validate()[name])
+    trainer.out.mkdir(parents=True, exist_ok=True)
+    save_tensors(trainer.model.state_dict(), trainer.out / f"best_{stage}.safetensors")
+
+
 def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
     """After ``epoch`` (1-based) of ``stage``: keep the best weights; True when the stage should stop.
 
@@ -54,9 +64,10 @@ def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
     """
     name, higher = SCORES[stage]
     records = [m for m in trainer.card.metrics if m["stage"] == stage][-epoch:]
-    scores = [float(m.get(name, math.nan)) for m in records]
+    start = trainer.card.training_data.get("stage_start", {}).get(stage, math.nan)
+    scores = [float(start)] + [float(m.get(name, math.nan)) for m in records]
     key = [(-s if higher else s) if math.isfinite(s) else math.inf for s in scores]
-    best = int(np.argmin(key)) + 1  # the first best epoch
+    best = int(np.argmin(key))  # the first best epoch; 0 = the weights the stage started from
     best_file = trainer.out / f"best_{stage}.safetensors"
     if best == epoch:
         save_tensors(trainer.model.state_dict(), best_file)
@@ -68,7 +79,7 @@ def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
         "best_epoch": best,
         "stopped_after": epoch,
         "score": name,
-        "value": scores[best - 1],
+        "value": scores[best],
     }
     save_checkpoint(trainer.out, trainer.model, trainer.card)
     best_file.unlink(missing_ok=True)

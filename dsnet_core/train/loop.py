@@ -43,7 +43,7 @@ from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.train import commit
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
-from dsnet_core.train.finetune import early_stop, holdout_split, volume_name
+from dsnet_core.train.finetune import early_stop, holdout_split, stage_start, volume_name
 from dsnet_core.train.metrics import ConfusionMeter
 from dsnet_core.train.shifting import (
     clusterer_for,
@@ -239,6 +239,8 @@ class Trainer:
             opt = self._optimizer(stage)
             if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
                 log.info("restored optimiser state of %s epoch %d", stage, done)
+            if self.cfg.patience and done == 0:
+                stage_start(self, stage)
             for epoch in range(done, total):
                 t0 = time.perf_counter()
                 for group in opt.param_groups:

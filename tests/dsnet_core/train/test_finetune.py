@@ -79,3 +79,18 @@ def test_early_stop_keeps_the_best_epoch_and_resume_respects_it(log, tmp_path):
     assert check.validate()["val_miou"] == pytest.approx(stop["value"], abs=1e-9)
     again = trainer(log, tmp_path, resume=True, **kw).run()  # the stopped stage is not trained again
     assert len(again.metrics) == len(card.metrics)
+
+
+def test_a_stage_that_never_beats_its_start_keeps_the_incoming_weights(log, tmp_path):
+    trainer(log, tmp_path / "p", stage="all", epochs={"semantic": 1, "offset": 2, "shift": 0}).run()
+    parent, _ = load_checkpoint(tmp_path / "p")
+    reader = SemanticKittiReader(log)
+    # a learning rate this high ruins the offsets in one epoch
+    cfg = TrainConfig(augment=False, lr=50.0, stage="offset", epochs={"offset": 2}, patience=1, holdout=0.4)
+    card = Trainer(
+        tmp_path / "c", TINY, reader, ["00"], reader, ["00"], LM, cfg, init_from=tmp_path / "p"
+    ).run()
+    stop = card.training_data["early_stop"]["offset"]
+    assert stop["best_epoch"] == 0 and stop["value"] == card.training_data["stage_start"]["offset"]
+    child, _ = load_checkpoint(tmp_path / "c")
+    assert all(torch.equal(v, child.state_dict()[k]) for k, v in parent.state_dict().items())

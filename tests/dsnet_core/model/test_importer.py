@@ -242,3 +242,19 @@ def test_equivariant_lifting_refuses_the_reference_grid_only():
     check_equivariant_grid(CylinderGrid(), 4)
     with pytest.raises(ConfigError, match="convention"):
         check_equivariant_grid(CylinderGrid(convention="reference"), 4)
+
+
+def test_numpy_scalars_of_old_pickles_are_allowed(tmp_path):
+    """The reference's other_state may hold numpy scalars, pickled under numpy 1.x's module name."""
+    import io
+
+    from dsnet_core.model.reference_convert import load_reference_file
+
+    buf = io.BytesIO()
+    obj = {"epoch": 3, "model_state": {"a": torch.ones(2)}, "other_state": {"best_pq": np.float64(0.5)}}
+    torch.save(obj, buf, _use_new_zipfile_serialization=False)  # protocol 2: GLOBAL module\nname
+    raw = buf.getvalue().replace(b"numpy._core.multiarray\nscalar", b"numpy.core.multiarray\nscalar")
+    assert b"numpy.core.multiarray\nscalar" in raw
+    (tmp_path / "old.pth").write_bytes(raw)
+    state, info = load_reference_file(tmp_path / "old.pth")
+    assert torch.equal(state["a"], torch.ones(2)) and info["epoch"] == 3

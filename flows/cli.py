@@ -10,6 +10,7 @@ from flows.commands.demo import demo
 from flows.commands.describe import describe
 from flows.commands.eval import eval_command
 from flows.commands.export import export
+from flows.commands.import_checkpoint import import_checkpoint
 from flows.commands.label import label, status
 from flows.commands.serve import serve
 from flows.commands.synth import synth
@@ -32,6 +33,7 @@ app.command()(train)
 app.command()(export)
 app.command()(dashboard)
 app.command()(serve)
+app.command(name="import-checkpoint")(import_checkpoint)
 
 
 def main() -> None:

@@ -110,11 +110,16 @@ class ShiftStage(Stage):
         from dsnet_core.instance.clustering import get_clusterer
         from dsnet_core.instance.shifting import DynamicShift
         from dsnet_core.model.bundle import load_shift_weights
+        from dsnet_core.model.checkpoint import read_card
 
         cfg = TypeAdapter(ClustererConfig).validate_python(ctx.plan["clusterer"])
         fixed = 0
         weights = None
         if isinstance(cfg, DynamicShiftConfig):
+            # the MLPs read the model's instance features: their width is the checkpoint's ins_dim
+            width = read_card(ctx.plan["checkpoint"]).config.ins_dim
+            if width != cfg.feature_dim:
+                cfg = cfg.model_copy(update={"feature_dim": width})
             weights = load_shift_weights(ctx.plan["checkpoint"])
             if weights is None:
                 log.warning(

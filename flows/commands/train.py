@@ -37,7 +37,9 @@ def train(
         help="Fine-tune: start --out from this checkpoint's weights and architecture (e.g. a 3D model "
         "fine-tuned on --scans 2 volumes with --epochs semantic=0,offset=2,shift=2).",
     ),
-    preset: str = typer.Option("tiny", help="Model width preset: tiny | small | paper."),
+    preset: str = typer.Option(
+        "tiny", help="Model preset: tiny | small | paper | reference | cylinder3d (the released shapes)."
+    ),
     sequences: str = typer.Option(None, help="Comma-separated training sequences (default: all)."),
     val_data: Path = typer.Option(None, help="Validation log root (default: DATA)."),
     val_sequences: str = typer.Option(None, help="Validation sequences (default: the training ones)."),
@@ -48,6 +50,17 @@ def train(
     augment: bool = typer.Option(True, help="Yaw/flip/scale/translation augmentation."),
     threads: int = typer.Option(1, help="Torch CPU threads."),
     grid: str = typer.Option(None, help="Cylinder cells 'ρ,φ,z' (default: the preset's, 480,360,32)."),
+    freeze_backbone: bool = typer.Option(
+        False,
+        "--freeze-backbone/--train-all",
+        help="Fine-tuning: the semantic stage trains only the semantic head (default: everything).",
+    ),
+    holdout: float = typer.Option(
+        0.0, help="Hold back this fraction of the training frames for validation (e.g. 0.2 for a few frames)."
+    ),
+    patience: int = typer.Option(
+        0, help="Early stop: end a stage after N epochs without a better validation score, keep the best."
+    ),
 ) -> None:
     """Train DS-Net (semantic → instance head → shifting) and write a checkpoint with a model card."""
     import logging
@@ -75,7 +88,7 @@ def train(
             vseqs = val_sequences.split(",")
         else:
             vseqs = val_reader.sequences() if val_data else seqs
-        if not val_data and not val_sequences:
+        if not val_data and not val_sequences and not holdout:
             console.print("[yellow]no validation set given: validating on the training sequences[/]")
         cfg = TrainConfig(
             stage=stage,
@@ -87,6 +100,9 @@ def train(
             seed=seed,
             augment=augment,
             device=device,
+            freeze_backbone=freeze_backbone,
+            holdout=holdout,
+            patience=patience,
         )
         model_config = get_preset(preset)
         if grid:

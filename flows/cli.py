@@ -12,6 +12,7 @@ from flows.commands.eval import eval_command
 from flows.commands.export import export
 from flows.commands.import_checkpoint import import_checkpoint
 from flows.commands.label import label, status
+from flows.commands.review import review
 from flows.commands.serve import serve
 from flows.commands.synth import synth
 from flows.commands.train import train
@@ -34,6 +35,7 @@ app.command()(export)
 app.command()(dashboard)
 app.command()(serve)
 app.command(name="import-checkpoint")(import_checkpoint)
+app.add_typer(review, name="review")
 
 
 def main() -> None:

@@ -23,6 +23,18 @@ from tasks.pipeline import Pipeline
 log = logging.getLogger(__name__)
 
 
+def write_frame_confidence(store: RunStore, pipeline: Pipeline | None = None) -> int:
+    """The ``frame_confidence`` report table of every labelled frame (scored or not); its row count."""
+    from flows.report.confidence import frame_confidence_rows
+    from flows.report.tables import REPORT_TABLES
+    from tasks.methods import run_pipeline
+
+    pipeline = pipeline or run_pipeline(store.read_run_config())
+    rows = frame_confidence_rows(store, pipeline, store.sequences())
+    store.write_run_table(REPORT_TABLES["frame_confidence"], rows)
+    return len(rows)
+
+
 def dataset_key(name: str) -> str:
     """An artifact key part: lowercase letters, digits, dashes (``KITTI_odo/v2`` -> ``kitti-odo-v2``)."""
     key = re.sub(r"[^a-z0-9]+", "-", str(name).lower()).strip("-")
@@ -97,6 +109,7 @@ def publish(
         ``{"scored": bool, "dashboard": location or None, "headline": {...}}``.
     """
     store = RunStore(root, storage_options)
+    write_frame_confidence(store, pipeline)
     report = write_report(store, pipeline)
     if report is None:
         log.info("nothing scored in %s (no ground truth, or no score stage yet)", store.uri)

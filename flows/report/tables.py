@@ -132,7 +132,34 @@ REVIEW_QUEUE = TableSpec(
     partition=(),
 )
 
+FRAME_CONFIDENCE = TableSpec(
+    "frame_confidence",
+    pa.schema(
+        [
+            ("sequence", pa.string()),
+            ("index", pa.int32()),  # frame index (the ingest frame table's)
+            ("frame_id", pa.string()),
+            ("semantic", pa.float64()),  # mean winning-class probability of the frame's points
+            ("agreement", pa.float64()),  # point-weighted instance agreement with the fused class
+            ("size", pa.float64()),  # 1 - share of instances under 30 points
+            ("stitch", pa.float64()),  # mean weakest link IoU of the frame's tracks (1: none)
+            ("score", pa.float64()),  # product of the four; lowest first
+            ("n_instances", pa.int32()),
+            ("n_points", pa.int64()),
+        ]
+    ),
+    partition=(),
+)
+
 REPORT_TABLES: dict[str, TableSpec] = {
     spec.name: spec
-    for spec in (SCORE_RUN, SCORE_SEQUENCES, SCORE_CLASSES, STAGE_TIMINGS, SCORE_BEV, REVIEW_QUEUE)
+    for spec in (
+        SCORE_RUN,
+        SCORE_SEQUENCES,
+        SCORE_CLASSES,
+        STAGE_TIMINGS,
+        SCORE_BEV,
+        REVIEW_QUEUE,
+        FRAME_CONFIDENCE,
+    )
 }

@@ -1,0 +1,77 @@
+"""Frame confidence for a run without scoring, and ``dsnet review export`` of its least confident
+frames (plain runner, k = 2, random-weight tiny checkpoint on the synthetic vlp32 log)."""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from dsnet_core.io.semantickitti import SemanticKittiReader
+from flows.cli import app
+from flows.publish import write_frame_confidence
+from flows.report.confidence import frame_confidence_rows
+from flows.report.tables import REPORT_TABLES
+from storage.run import RunStore
+from tasks.infer import dequantise_probs
+from tasks.methods import get_pipeline
+from tasks.runner import run_stage_plain
+from tests.model_helpers import make_checkpoint
+
+P = get_pipeline()
+STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")  # no score stage: no ground truth used
+
+
+@pytest.fixture(scope="module")
+def run(synth_log, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("review")
+    ckpt = make_checkpoint(tmp / "ckpt", seed=0)
+    store = RunStore(tmp / "run")
+    cfg = {
+        "data": str(synth_log),
+        "stages": {
+            "align": {"scans": 2},
+            "infer": {"checkpoint": str(ckpt)},
+            "shift": {"clusterer": {"kind": "dynamic_shift", "n_seeds": 300, "bandwidths": [0.2, 1.8, 3.4]}},
+        },
+        "options": {"block_size": 3},
+    }
+    store.write_run_config("r1", cfg)
+    for s in STAGES:
+        run_stage_plain(store, P, "00", s, cfg, "r1")
+    return store, synth_log
+
+
+def test_frame_confidence_table(run):
+    store, _ = run
+    assert write_frame_confidence(store, P) == 6  # sequence 00's six frames; 01 was not labelled
+    t = store.read_all(REPORT_TABLES["frame_confidence"]).to_pydict()
+    assert sorted(t["index"]) == list(range(6)) and t["score"] == sorted(t["score"])
+    for k in ("semantic", "agreement", "size", "stitch", "score"):
+        assert all(0.0 <= v <= 1.0 for v in t[k])
+    row = t["index"].index(0)  # frame 0 belongs to the first volume
+    src = store.arrays("00", P["align"].contract).read_item(0, ["source_frame"])["source_frame"]
+    probs = dequantise_probs(store.arrays("00", P["infer"].contract).read_item(0, ["probs"])["probs"])
+    assert t["semantic"][row] == pytest.approx(float(probs[src == 0].max(axis=1).mean()))
+    assert t["n_points"][row] == int((src == 0).sum())
+
+
+def test_review_export(run, tmp_path):
+    store, log = run
+    res = CliRunner().invoke(
+        app, ["review", "export", str(store.uri), "--top", "3", "--out", str(tmp_path / "rv")]
+    )
+    assert res.exit_code == 0, res.output
+    rows = frame_confidence_rows(store, P, ["00"])[:3]
+    manifest = json.loads((tmp_path / "rv" / "review.json").read_text())
+    assert [f["frame"] for f in manifest["frames"]] == [r["frame_id"] for r in rows]
+    reader, out = SemanticKittiReader(log), SemanticKittiReader(tmp_path / "rv")
+    stitch = store.arrays("00", P["stitch"].contract)
+    for ref in out.frames("00"):
+        index = next(r["index"] for r in rows if r["frame_id"] == ref.frame_id)
+        assert np.array_equal(out.scan(ref), reader.scan(reader.frames("00")[index]))
+        assert np.array_equal(out.labels(ref), stitch.read_item(index, ["label"])["label"])
+    again = CliRunner().invoke(
+        app, ["review", "export", str(store.uri), "--top", "3", "--out", str(tmp_path / "rv")]
+    )
+    assert again.exit_code == 2 and "already holds frames" in again.output

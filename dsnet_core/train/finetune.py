@@ -17,7 +17,7 @@ import numpy as np
 from safetensors.torch import load_file
 
 from dsnet_core.io.reader import FrameRef
-from dsnet_core.model.checkpoint import save_checkpoint, save_tensors
+from dsnet_core.model.checkpoint import save_tensors
 
 if TYPE_CHECKING:
     from dsnet_core.train.loop import Trainer
@@ -81,6 +81,6 @@ def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
         "score": name,
         "value": scores[best],
     }
-    save_checkpoint(trainer.out, trainer.model, trainer.card)
+    trainer._save(stage, epoch, None)  # weights, card and metrics land together
     best_file.unlink(missing_ok=True)
     return epoch < total

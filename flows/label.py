@@ -26,10 +26,8 @@ from tasks.pipeline import Pipeline
 def label(request: LabelRequest) -> list[dict[str, Any]]:
     """The body of both flows. Returns one summary row per (sequence, stage), plus one per failed
     sequence."""
-    from dsnet_core.io.formats import open_log
-
     pipeline = request.pipeline()
-    reader = open_log(request.data, request.format)
+    reader = request.open_log()
     sequences = request.sequences if request.sequences is not None else reader.sequences()
     store = RunStore(request.root, request.storage_options)
     run_id, run = record_run(store, request, pipeline, reader.format, sequences)

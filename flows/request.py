@@ -26,6 +26,8 @@ class LabelRequest(BaseModel):
         root: the run store (a folder or ``s3://bucket/prefix``).
         sequences: sequences to label (None: every sequence of the log).
         format: the log's format name, or ``auto`` to detect it.
+        reader_options: keyword options of the format's reader (``{"topic": "/points"}``,
+            ``{"sweeps": True}``); recorded in the run config so every stage opens the log alike.
         method: the method (:data:`tasks.methods.METHODS`) and ``method_options`` its factory's options.
         stages: per-stage config overrides (``{"align": {"scans": 2}}``).
         options: run-level policy (error handling, block size, locks).
@@ -41,6 +43,7 @@ class LabelRequest(BaseModel):
     root: str
     sequences: list[str] | None = None
     format: str = "auto"
+    reader_options: dict[str, Any] = Field(default_factory=dict)
     method: str = DEFAULT_METHOD
     method_options: dict[str, Any] = Field(default_factory=dict)
     stages: dict[str, dict[str, Any]] = Field(default_factory=dict)
@@ -69,9 +72,71 @@ class LabelRequest(BaseModel):
             return {self.from_stage, *pipeline.downstream_of(self.from_stage)}
         return set()
 
+    def open_log(self):
+        """The log's reader, opened with the request's format and reader options.
+
+        Raises:
+            DataFormatError: unknown format, nothing detected, or an option the reader lacks.
+        """
+        from dsnet_core.io.formats import open_log
+
+        return open_log(self.data, self.format, self.reader_options)
+
+    def stage_configs(self, pipeline: Pipeline, names: list[str] | None = None) -> dict[str, dict[str, Any]]:
+        """The configs the run records for ``names`` (default: every stage of the pipeline): the
+        request's overrides, and ingest's ``grid`` from the model card of infer's checkpoint (the
+        bundled model for align's k when none is named) unless the request sets it.
+
+        Raises:
+            CheckpointError: the named checkpoint has no model card.
+        """
+        names = pipeline.names() if names is None else names
+        out = {name: dict(self.stages.get(name, {})) for name in names}
+        if "ingest" in out and "grid" not in out["ingest"] and "infer" in pipeline:
+            grid = model_grid(self.stages.get("infer", {}), self.stages.get("align", {}))
+            if grid is not None:
+                out["ingest"]["grid"] = grid
+        return out
+
     def dataset_name(self) -> str:
         """A short name of the log (its folder's name), for artifact keys."""
         return str(self.data).rstrip("/").rsplit("/", 1)[-1]
+
+
+def model_grid(infer: dict[str, Any], align: dict[str, Any]) -> dict[str, list[float]] | None:
+    """The grid bounds of the model an infer config names (the bundled model for align's k when it
+    names none); None when there is no bundled model for that k."""
+    from dsnet_core.model.bundle import bundled_checkpoint
+    from dsnet_core.model.checkpoint import read_card
+
+    path = infer.get("checkpoint") or bundled_checkpoint(int(align.get("scans", 1)))
+    if path is None:
+        return None
+    grid = read_card(path).config.grid
+    return {"min_bound": list(grid.min_bound), "max_bound": list(grid.max_bound)}
+
+
+def parse_reader_options(pairs: list[str] | None) -> dict[str, Any]:
+    """``["topic=/points", "sweeps=true"]`` -> ``{"topic": "/points", "sweeps": True}``: values are
+    YAML scalars (``true``, ``5``, ``0.1``; anything else stays a string).
+
+    Raises:
+        ValueError: an entry without ``=`` or with an empty key.
+    """
+    import yaml
+
+    out: dict[str, Any] = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        key = key.strip().replace("-", "_")
+        if not sep or not key:
+            raise ValueError(f"--reader-option {pair!r}: expected KEY=VALUE (e.g. topic=/points)")
+        try:
+            parsed = yaml.safe_load(value) if value.strip() else ""
+        except yaml.YAMLError:
+            parsed = value
+        out[key] = parsed if isinstance(parsed, str | int | float | bool) else value
+    return out
 
 
 def stage_settings(

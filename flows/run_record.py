@@ -45,8 +45,9 @@ def record_run(
 ) -> tuple[str, dict[str, Any]]:
     """Write the run's config to the store (``run.json`` and ``runs/<id>.json``); returns (id, config).
 
-    The config holds what every stage reads back: the log, its format, the method and each executed
-    stage's settings, and the run options.
+    The config holds what every stage reads back: the log, its format and reader options, the method
+    and each executed stage's settings (:meth:`~flows.request.LabelRequest.stage_configs`), and the
+    run options.
     """
     run_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:6]}"
     order = request.order(pipeline)
@@ -55,8 +56,9 @@ def record_run(
         **pipeline.record(),
         "data": str(request.data),
         "format": log_format,
+        "reader_options": dict(request.reader_options),
         "sequences": list(sequences),
-        "stages": {name: dict(request.stages.get(name, {})) for name in order},
+        "stages": request.stage_configs(pipeline, order),
         "options": request.options.model_dump(),
         "host": socket.gethostname(),
         "started": time.time(),

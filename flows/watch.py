@@ -25,17 +25,16 @@ def pending_sequences(request: LabelRequest) -> list[str]:
     """Sequences of the request's log that its store lacks or holds stale (in the stages the request
     runs: all, or up to ``until``). The manifests decide: no finished ingest, changed source files,
     or a stage not done / done with another config or upstream."""
-    from dsnet_core.io.formats import open_log
-
     pipeline = request.pipeline()
     order = request.order(pipeline)
     first = order[0]
     store = RunStore(request.root, request.storage_options)
-    reader = open_log(request.data, request.format)
+    reader = request.open_log()
     run = {
         "data": str(request.data),
         "format": reader.format,
-        "stages": {n: dict(request.stages.get(n, {})) for n in pipeline.names()},
+        "reader_options": dict(request.reader_options),
+        "stages": request.stage_configs(pipeline),
     }
     out = []
     for seq in reader.sequences():

@@ -1,7 +1,11 @@
 """Stage ``ingest``: read a log through the reader protocol and write the frame table.
 
 Per frame: id, source path, point count, LiDAR-frame pose and where it came from, timestamp,
-checksum (blake2b of the scan's and labels' bytes), status. With ``on_error="skip"`` a bad frame is
+checksum (blake2b of the scan's and labels' bytes), status, the source's intensity convention
+(the reader hands the model 0–1 remission whatever the source stored: :mod:`dsnet_core.io.intensity`)
+and the points outside the model's cylindrical grid (the model clamps them into the grid's edge
+cells, :mod:`dsnet_core.model.bounds`; counted in the scan's own sensor frame against the grid the
+request records in ``grid``, from the model card). With ``on_error="skip"`` a bad frame is
 quarantined with the reader's message and the rest proceeds; by default the reader's error fails
 the sequence.
 
@@ -20,6 +24,7 @@ import numpy as np
 import pyarrow as pa
 
 from dsnet_core.errors import DataFormatError
+from dsnet_core.model.bounds import outside_grid
 from dsnet_core.temporal.odometry import Odometry, OdometryError
 from storage.contract import TableSpec
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
@@ -40,6 +45,8 @@ FRAMES = TableSpec(
             ("has_labels", pa.bool_()),
             ("status", pa.string()),  # "ok" | "quarantined"
             ("reason", pa.string()),
+            ("intensity_convention", pa.string()),  # the source's: unit | uint8 | uint16 | none
+            ("outside_grid", pa.int64()),  # points outside the model's grid (clamped); null: no grid
         ]
     ),
 )
@@ -63,15 +70,26 @@ def _stat(path) -> list:
     return [os.path.basename(path), st.st_size, st.st_mtime_ns]
 
 
+class GridBounds(StageConfig):
+    """The bounds of a model's cylindrical grid: (ρ m, φ rad, z m) lower and upper."""
+
+    min_bound: tuple[float, float, float]
+    max_bound: tuple[float, float, float]
+
+
 class IngestConfig(StageConfig):
     """Ingest settings (with the version and the source listing, they decide the fingerprint).
 
     Attributes:
         estimate_poses: estimate LiDAR poses by KISS-ICP odometry for sequences whose log has none
             (no effect where the log has poses).
+        grid: the model's grid bounds, against which each scan's points outside the grid are
+            counted (``flows.request.LabelRequest.stage_configs`` fills it from the model card);
+            None leaves ``outside_grid`` null.
     """
 
     estimate_poses: bool = False
+    grid: GridBounds | None = None
 
 
 def _log_pose_source(reader, frames) -> str | None:
@@ -88,15 +106,17 @@ def _log_pose_source(reader, frames) -> str | None:
 class IngestStage(Stage):
     name = "ingest"
     upstream = ()
-    version = "2"  # 2: pose_source column, estimated poses
+    version = "3"  # 2: pose_source column, estimated poses; 3: intensity_convention, outside_grid
     Config = IngestConfig
     item = "frame"
     tables = (FRAMES,)
 
     def inputs(self, ctx: StageContext) -> str:
-        """Names, sizes and mtimes of every scan and label file, plus the poses and times values."""
+        """The format and reader options the run opens the log with, the names, sizes and mtimes of
+        every scan and label file, and the poses and times values."""
         reader = ctx.reader
         h = hashlib.blake2b(digest_size=16)
+        h.update(repr((reader.format, sorted((ctx.run.get("reader_options") or {}).items()))).encode())
         frames = reader.frames(ctx.sequence)
         h.update(repr([(_stat(f.scan_path), _stat(f.label_path)) for f in frames]).encode())
         try:
@@ -126,6 +146,7 @@ class IngestStage(Stage):
         if estimate and list(items) != list(range(len(frames))):
             raise ValueError(f"pose estimation needs the whole sequence in one block, got items {items}")
         odometry = Odometry() if estimate else None
+        grid = ctx.config.grid
         for i in items:
             frame = frames[i]
             row = {
@@ -141,12 +162,15 @@ class IngestStage(Stage):
                 "has_labels": frame.label_path is not None,
                 "status": "ok",
                 "reason": None,
+                "intensity_convention": None,
+                "outside_grid": None,
             }
             try:
                 scan = reader.scan(frame)
                 labels = reader.labels(frame)
                 pose = reader.pose(frame)
                 row["timestamp"] = reader.timestamp(frame)
+                row["intensity_convention"] = reader.intensity_convention(ctx.sequence)
                 if odometry is not None:
                     pose = odometry.register(scan, str(frame.scan_path))
             except (DataFormatError, OdometryError) as exc:
@@ -160,9 +184,11 @@ class IngestStage(Stage):
                 pose=None if pose is None else [float(v) for v in np.asarray(pose).reshape(-1)],
                 pose_source=None if pose is None else ("estimated" if estimate else "log"),
                 checksum=frame_checksum(scan, labels),
+                outside_grid=None
+                if grid is None
+                else int(outside_grid(scan, grid.min_bound, grid.max_bound).sum()),
             )
-            yield ItemResult(
-                i,
-                rows={"frames": [row]},
-                counts={"frames": 1, "points": int(scan.shape[0]), "quarantined": 0},
-            )
+            counts = {"frames": 1, "points": int(scan.shape[0]), "quarantined": 0}
+            if row["outside_grid"] is not None:
+                counts["outside_grid"] = row["outside_grid"]
+            yield ItemResult(i, rows={"frames": [row]}, counts=counts)

@@ -125,6 +125,25 @@ class FolderReader:
         """The source intensity convention of a sequence (stated, or inferred from its first scan)."""
         return self._layout(sequence)[1]
 
+    def sensor_fields(self, sequence: str) -> str:
+        """The fields read from the sequence's scans: x y z and the intensity field, by its first scan."""
+        first = self._frames(sequence)[0].scan_path
+        columns = self._layout(sequence)[0]
+        pts = read_points(first, columns, self.intensity_field)
+        kind = f"{first.suffix.lower()}" + (f" N×{columns}" if first.suffix.lower() == ".bin" else "")
+        return f"x y z {pts.field or '(no intensity)'} ({kind})"
+
+    def pose_source(self, sequence: str) -> str | None:
+        """Where the sequence's poses come from, or None without poses."""
+        folder = self._dir(sequence)
+        if self._tum(sequence) is not None:
+            name = "poses.tum" if (folder / "poses.tum").is_file() else "poses.txt"
+            return f"{name} (TUM, at the frame times)"
+        if (folder / "poses.txt").is_file():
+            calib = " ∘ calib.txt Tr (camera frame)" if (folder / "calib.txt").is_file() else ""
+            return f"poses.txt (KITTI 3×4){calib}"
+        return None
+
     def scan(self, frame: FrameRef) -> np.ndarray:
         """float32 ``(N, 4)``: x, y, z (metres, sensor frame), remission 0–1."""
         columns, convention = self._layout(frame.sequence)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsnet_core.errors import DataFormatError
+from dsnet_core.errors import ConfigError, DataFormatError
 from dsnet_core.io.reader import LogReader
 
 
@@ -35,12 +35,14 @@ class LogFormat:
         detect: True when a root folder (or file) is in this format; cheap (names, not contents).
         open: ``open(root, **options) -> LogReader``.
         description: one line for error messages and ``--help``.
+        options: the reader options ``open`` accepts (``dsnet label --reader-option KEY=VALUE``).
     """
 
     name: str
     detect: Callable[[Path], bool]
     open: Callable[..., LogReader]
     description: str
+    options: tuple[str, ...] = ()
 
 
 FORMATS: dict[str, LogFormat] = {}
@@ -85,12 +87,20 @@ def open_log(root: str | Path, format: str = "auto", options: dict[str, Any] | N
 
     Raises:
         UnknownLogFormatError: unknown name, or nothing detected.
+        ConfigError: an option the format's reader does not take (the message lists its options).
         DataFormatError: the reader's own checks of the root.
     """
     name = detect_format(root) if format == "auto" else format
     if name not in FORMATS:
         raise UnknownLogFormatError(root, f"unknown format {name!r}; formats: {', '.join(FORMATS)}")
-    return FORMATS[name].open(Path(root).expanduser(), **(options or {}))
+    fmt = FORMATS[name]
+    unknown = sorted(set(options or {}) - set(fmt.options))
+    if unknown:
+        raise ConfigError(
+            f"{root}: the {name} reader has no option {', '.join(map(repr, unknown))}; its options are "
+            f"{', '.join(fmt.options) or 'none'}"
+        )
+    return fmt.open(Path(root).expanduser(), **(options or {}))
 
 
 def _listing(path: Path, limit: int = 8) -> str:
@@ -157,6 +167,7 @@ register(
         _is_semantickitti,
         _open_semantickitti,
         "sequences/SS/velodyne/*.bin with optional labels/, poses.txt, calib.txt, times.txt",
+        ("label_map", "check_labels"),
     )
 )
 register(
@@ -165,6 +176,7 @@ register(
         _is_nuscenes,
         _open_nuscenes,
         "v1.0-*/ JSON tables with samples/ and sweeps/ LIDAR_TOP .pcd.bin, optional panoptic/ and lidarseg/",
+        ("version", "sweeps", "channel", "label_map"),
     )
 )
 register(
@@ -173,6 +185,7 @@ register(
         _is_rosbag,
         _open_rosbag,
         "a ROS 2 bag (folder with metadata.yaml, or .mcap/.db3) or a folder of bags, PointCloud2 + /tf",
+        ("topic", "fixed_frame", "intensity", "intensity_field", "tf_tolerance_s", "label_map"),
     )
 )
 register(
@@ -181,5 +194,6 @@ register(
         _is_folder,
         _open_folder,
         "a folder (or folders) of .bin/.npy/.npz/.pcd/.ply/.las/.laz scans, optional poses.txt/times.txt",
+        ("order", "intensity", "intensity_field", "bin_columns", "suffix", "label_map", "pose_tolerance_s"),
     )
 )

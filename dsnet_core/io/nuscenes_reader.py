@@ -163,6 +163,14 @@ class NuScenesReader:
     def intensity_convention(self, sequence: str) -> str:
         return self.intensity
 
+    def sensor_fields(self, sequence: str) -> str:
+        """The per-point fields of the source scans."""
+        return f"x y z intensity ring (float32 N×{self.columns}, {self.channel})"
+
+    def pose_source(self, sequence: str) -> str | None:
+        """Where the poses come from (every nuScenes frame has one)."""
+        return f"ego_pose ∘ calibrated_sensor ({self.version} tables)"
+
     # -- helpers -------------------------------------------------------------------------------
     def _load(self, name: str, required: bool) -> list[dict] | None:
         path = self._dir / f"{name}.json"

@@ -4,6 +4,13 @@ the synthetic generator's output) is read through this small interface.
 Every reader returns scans in the model's convention (float32 x, y, z in metres and 0–1
 remission, through :func:`dsnet_core.io.intensity.normalise_intensity`) and states the source's
 intensity convention per sequence (``intensity_convention``).
+
+Readers hand out every finite point, however far: the model clamps points beyond its
+cylindrical grid into the grid's edge cells (never drops them, so labels keep the scan's point
+count and order), and ingest records per frame the source's intensity convention and how many
+points lie outside the model's grid (``intensity_convention``, ``outside_grid`` in the frame
+table; ``docs/algorithm.md``, "Cylindrical grid"). Optional methods ``sensor_fields(sequence)``
+and ``pose_source(sequence)`` describe the source for ``dsnet describe``.
 """
 
 from __future__ import annotations

@@ -126,6 +126,19 @@ class RosbagReader:
         )
         return out
 
+    def sensor_fields(self, sequence: str) -> str:
+        """The topic, the cloud frame and the fields read (x y z and the intensity field)."""
+        index = self._index(sequence)
+        first = self._frames(sequence)[0]
+        field = self._cloud(first).field or "(no intensity)"
+        return f"x y z {field} (PointCloud2 {index.topic}, frame {index.cloud_frames[0]})"
+
+    def pose_source(self, sequence: str) -> str | None:
+        """``tf <fixed frame> -> <cloud frame>``, or None when the bag's tf gives no poses."""
+        if self._poses(sequence) is None:
+            return None
+        return f"tf {self.fixed_frame_of(sequence)} -> {self._index(sequence).cloud_frames[0]}"
+
     def dropped_points(self, frame: FrameRef) -> int:
         """NaN/inf returns dropped from a frame's cloud."""
         key = (frame.sequence, frame.index)

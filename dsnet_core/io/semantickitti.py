@@ -65,6 +65,14 @@ class SemanticKittiReader:
         """SemanticKITTI remission is already the model's 0–1 convention."""
         return "unit"
 
+    def sensor_fields(self, sequence: str) -> str:
+        """The per-point fields of the source scans."""
+        return "x y z remission (float32 N×4)"
+
+    def pose_source(self, sequence: str) -> str | None:
+        """Where the sequence's poses come from, or None without poses."""
+        return "poses.txt (camera frame) ∘ calib.txt Tr" if self.has_poses(sequence) else None
+
     def labels(self, frame: FrameRef, n_points: int | None = None) -> np.ndarray | None:
         if frame.label_path is None:
             return None

@@ -8,6 +8,16 @@ from typing import NoReturn
 
 import typer
 
+FORMAT_HELP = (
+    "Log format: auto (detect), semantickitti, nuscenes, folder or rosbag; the same names as "
+    "`dsnet export --format`."
+)
+READER_OPTION_HELP = (
+    "A reader option KEY=VALUE, repeatable (nuscenes: sweeps=true, version=v1.0-mini; rosbag: "
+    "topic=/points, fixed_frame=odom, intensity=uint16; folder: order=time, intensity=uint8, "
+    "bin_columns=5, suffix=pcd). Recorded in the run."
+)
+
 
 def fail(exc: BaseException | str) -> NoReturn:
     """Print ``error: <message>`` in red on stderr and exit with code 2."""

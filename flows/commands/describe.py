@@ -6,20 +6,24 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import FORMAT_HELP, READER_OPTION_HELP, errors_exit
 
 
 def describe(
     data: Path = typer.Argument(..., help="Log root (any format `dsnet label` reads)."),
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
-    format: str = typer.Option("auto", "--format", help="Log format (default: detected)."),
+    format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+    reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
 ) -> None:
-    """Check every file of a log and print frames, points and the class histogram."""
+    """Check every file of a log and print its format, per sequence the frames, points per frame,
+    sensor fields, intensity convention and pose source, and the class histogram."""
     from dsnet_core.io.describe import summarize
     from dsnet_core.io.formats import open_log
+    from flows.request import parse_reader_options
 
     with errors_exit():
-        summary = summarize(open_log(data, format), sequences.split(",") if sequences else None)
+        reader = open_log(data, format, parse_reader_options(reader_option))
+        summary = summarize(reader, sequences.split(",") if sequences else None)
     print_log_summary(summary)
 
 
@@ -28,14 +32,22 @@ def print_log_summary(summary) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    console = Console()
+    console = Console(width=160)
+    console.print(f"format: {summary.format}")
     table = Table(title="sequences")
-    for col in ("sequence", "frames", "points", "points/frame", "poses"):
+    for col in ("sequence", "frames", "points", "points/frame", "sensor fields", "intensity", "poses"):
         table.add_column(col, justify="right")
     for seq, n in summary.frames.items():
         pts = summary.points[seq]
+        source = summary.pose_source.get(seq)
         table.add_row(
-            seq, str(n), str(pts), f"{pts / max(n, 1):.0f}", "yes" if summary.has_poses[seq] else "no"
+            seq,
+            str(n),
+            str(pts),
+            f"{pts / max(n, 1):.0f}",
+            summary.fields.get(seq, ""),
+            summary.intensity.get(seq, ""),
+            source or "none (dsnet label --estimate-poses)",
         )
     console.print(table)
     if summary.class_points:

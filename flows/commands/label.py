@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import FORMAT_HELP, READER_OPTION_HELP, errors_exit
 
 
 def label(
     data: str = typer.Argument(..., help="Log root (any supported format; see --format)."),
     run: str = typer.Option(..., "--run", help="Run store root: a folder or s3://bucket/prefix."),
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
-    format: str = typer.Option("auto", "--format", help="Log format (default: detected from the log)."),
+    format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+    reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
     method: str = typer.Option("dsnet", "--method", help="Labelling method (see the README's method table)."),
     scans: int = typer.Option(2, min=1, max=16, help="k, scans per 4D volume (1 = 3D, 2 = 4D default)."),
     stride: int = typer.Option(None, min=1, help="Step between volumes (default k-1, or 1 for k=1)."),
@@ -46,7 +47,7 @@ def label(
         raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
     if workers and dask_address:
         raise typer.BadParameter("give --workers or --dask-address, not both")
-    from flows.request import LabelRequest, stage_settings
+    from flows.request import LabelRequest, parse_reader_options, stage_settings
 
     with errors_exit():
         request = LabelRequest(
@@ -54,6 +55,7 @@ def label(
             root=run,
             sequences=sequences.split(",") if sequences else None,
             format=format,
+            reader_options=parse_reader_options(reader_option),
             method=method,
             stages=stage_settings(scans, stride, checkpoint, clusterer, estimate_poses),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},

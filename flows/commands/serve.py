@@ -7,12 +7,15 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit, fail
+from flows.commands.common import FORMAT_HELP, READER_OPTION_HELP, errors_exit, fail
 
 
 def serve(
-    watch: Path = typer.Option(..., "--watch", help="Log root to watch (any supported format)."),
-    format: str = typer.Option("auto", "--format", help="Log format (default: detected)."),
+    watch: Path = typer.Option(
+        ..., "--watch", help="Log root to watch (any format: each scene, scan folder or bag is a sequence)."
+    ),
+    format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+    reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
     runs: str = typer.Option(..., "--runs", help="Run store root the labels and scores go to."),
     cron: str = typer.Option("0 * * * *", "--cron", help="When to look for new or stale sequences (cron)."),
     name: str = typer.Option(
@@ -37,7 +40,7 @@ def serve(
             "schedules need a Prefect server: run `prefect server start --host 127.0.0.1` and "
             "export PREFECT_API_URL=http://127.0.0.1:4200/api"
         )
-    from flows.request import LabelRequest, stage_settings
+    from flows.request import LabelRequest, parse_reader_options, stage_settings
     from flows.watch import serve as serve_deployment
 
     with errors_exit():
@@ -45,10 +48,12 @@ def serve(
             data=str(watch.resolve()),
             root=runs,
             format=format,
+            reader_options=parse_reader_options(reader_option),
             stages=stage_settings(scans, checkpoint=checkpoint, estimate_poses=estimate_poses),
             until=until,
         )
         request.order(request.pipeline())  # unknown stages fail now, not at the first tick
+        request.open_log()  # so do an unknown format or reader option
     typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
     with errors_exit():
         serve_deployment(request, cron, name)

@@ -42,6 +42,29 @@ def test_ingest_frame_table(log, tmp_path):
     assert t["n_points"] == [reader.scan(r).shape[0] for r in refs]
     np.testing.assert_allclose(np.reshape(t["pose"][3], (4, 4)), pose(3), atol=1e-9)
     assert t["timestamp"][5] == pytest.approx(0.5) and set(t["status"]) == {"ok"} and all(t["has_labels"])
+    assert t["intensity_convention"] == ["unit"] * 7 and t["outside_grid"] == [None] * 7  # no grid given
+
+
+def test_ingest_counts_points_outside_the_model_grid(log, tmp_path):
+    """With the model's grid in ingest's config, each frame counts its points beyond the bounds
+    (a 10 m box around a synthetic log: ρ < 3 m or > 10 m, z beyond [-3, 1.5] m)."""
+    from dsnet_core.model.bounds import outside_grid
+
+    store = RunStore(tmp_path / "run")
+    grid = {"min_bound": [3.0, -np.pi, -3.0], "max_bound": [10.0, np.pi, 1.5]}
+    run = {"data": str(log), "stages": {"ingest": {"grid": grid}}, "options": {"block_size": 3}}
+    store.write_run_config("r1", run)
+    m = run_stage_plain(store, P, "00", "ingest", run, "r1")
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
+    reader = SemanticKittiReader(log)
+    want = []
+    for r in reader.frames("00"):
+        xyz = reader.scan(r)[:, :3].astype(np.float64)
+        rho = np.hypot(xyz[:, 0], xyz[:, 1])
+        want.append(int(((rho < 3) | (rho > 10) | (xyz[:, 2] < -3) | (xyz[:, 2] > 1.5)).sum()))
+    assert t["outside_grid"] == want and 0 < sum(want) < sum(t["n_points"])
+    assert m.counts["outside_grid"] == sum(want)
+    assert want[0] == int(outside_grid(reader.scan(reader.frames("00")[0]), *grid.values()).sum())
 
 
 def test_align_volumes_split_back_and_keep_labels(log, tmp_path):

@@ -61,3 +61,28 @@ def test_maps_round_trip():
         pts = order[offsets[v] : offsets[v + 1]]
         assert torch.all(vox.point_to_voxel[pts] == v)
     assert torch.equal(torch.sort(order).values, torch.arange(n))
+
+
+def test_outside_grid_counts_exactly_the_points_the_model_clamps():
+    """``bounds.outside_grid`` (numpy, used by ingest) marks the points whose polar coordinates
+    ``cylinder_features`` clamps, on random points around and across every bound."""
+    import numpy as np
+
+    from dsnet_core.model.bounds import outside_grid
+
+    rng = np.random.default_rng(0)
+    pts = np.zeros((20000, 4), dtype=np.float32)
+    rho = rng.uniform(0, 60, len(pts))
+    phi = rng.uniform(-math.pi, math.pi, len(pts))
+    pts[:, 0], pts[:, 1] = rho * np.cos(phi), rho * np.sin(phi)
+    pts[:, 2] = rng.uniform(-4, 2.5, len(pts))
+    pts[:5, :3] = [[3.0, 0, 0], [50.0, 0, 0], [10.0, 0, -3.0], [10.0, 0, 1.5], [-10.0, 0, 0]]  # on bounds
+    x, y, z = (torch.from_numpy(pts[:, i]) for i in range(3))
+    pol = torch.stack([torch.sqrt(x * x + y * y), torch.atan2(y, x), z], dim=1)
+    lo, hi = (
+        torch.tensor(GRID.min_bound, dtype=torch.float32),
+        torch.tensor(GRID.max_bound, dtype=torch.float32),
+    )
+    clamped = (torch.minimum(torch.maximum(pol, lo), hi) != pol).any(dim=1).numpy()
+    got = outside_grid(pts, GRID.min_bound, GRID.max_bound)
+    assert np.array_equal(got, clamped) and 0 < got.sum() < len(pts) and not got[:5].any()

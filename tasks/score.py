@@ -10,7 +10,12 @@ from averaging per-frame numbers.
 The stage reads whichever stage holds the method's final labels (``labels``: ``stitch`` for
 DS-Net), whose ``label`` array holds ``raw semantic | instance << 16`` per frame in the scan's
 original point order. The ground truth's label map is the log reader's; predictions are in the
-model's label map, and the two must be the same map.
+model's label map. The scorer comes from :func:`dsnet_core.metrics.scoring.make_scorer`: the same
+map on both sides scores the labels as they are; different maps go through the explicit class
+mapping between the two (package data chosen by the pair of map names) in the ground truth's own
+benchmark metrics, or are refused when no mapping exists. The plan records what was used
+(``scoring``: metric family, min_points, the mapping's file, sha256 and classes) and the mapping's
+digest is part of the fingerprint.
 """
 
 from __future__ import annotations
@@ -24,8 +29,8 @@ from pydantic import Field
 
 from dsnet_core.errors import ConfigError
 from dsnet_core.labels import LabelMap
-from dsnet_core.metrics import PanopticEvaluator
-from dsnet_core.metrics.state import evaluator_state, state_to_bytes
+from dsnet_core.metrics.scoring import Scorer, describe_scorer, make_scorer, scorer_state
+from dsnet_core.metrics.state import state_to_bytes
 from storage.contract import TableSpec
 from storage.errors import StoreError
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
@@ -62,8 +67,13 @@ class ScoreConfig(StageConfig):
     min_points: int | None = Field(None, ge=0)
 
 
-def make_evaluator(config: ScoreConfig, label_map: LabelMap) -> PanopticEvaluator:
-    return PanopticEvaluator(label_map, min_points=config.min_points, mode=config.mode, keep_rows=False)
+def make_evaluator(config: ScoreConfig, gt_map: LabelMap, model_map: LabelMap | None = None) -> Scorer:
+    """The scorer of a run: ground truth in ``gt_map``, predictions in ``model_map`` (default: the same).
+
+    Raises:
+        ConfigError: the maps differ and there is no class mapping (or scorer) between them.
+    """
+    return make_scorer(gt_map, model_map or gt_map, config.mode, config.min_points)
 
 
 def block_state_name(first_item: int) -> str:
@@ -88,9 +98,17 @@ class ScoreStage(Stage):
         return self.upstream[0]
 
     def inputs(self, ctx: StageContext) -> str:
-        """The ground truth's label map (the reader's) decides the scores as much as the config."""
+        """The ground truth's label map (the reader's) and the class mapping from the model's map
+        (its file's sha256, when the maps differ) decide the scores as much as the config."""
         gt = ctx.reader.label_map
-        return "" if gt is None else f"gt-labels:{gt.name}:{gt.source}"
+        if gt is None:
+            return ""
+        try:
+            scoring = describe_scorer(make_evaluator(ctx.config, gt, ctx.label_map))
+        except (ConfigError, StoreError):  # no model map yet, or no mapping: plan() says so
+            scoring = {}
+        mapping = scoring.get("mapping") or {}
+        return f"gt-labels:{gt.name}:{gt.source}:mapping:{mapping.get('sha256', '')}"
 
     def plan(self, ctx: StageContext) -> Plan:
         table = ctx.frames.to_pydict()
@@ -107,35 +125,34 @@ class ScoreStage(Stage):
             for i, ok, gt in zip(table["index"], table["status"], table["has_labels"], strict=True)
             if ok == "ok" and gt and done[int(i)]
         ]
-        if scored:
-            self.label_map(ctx)  # a model/ground-truth map mismatch fails here, before any block
+        meta = {"frames": scored}
+        if scored:  # no mapping between the model's and the ground truth's maps fails here
+            meta["scoring"] = describe_scorer(self.scorer(ctx))
         ids = dict(zip(table["index"], table["frame_id"], strict=True))
-        frame_ids = [ids[i] for i in scored]
-        return Plan(n_items=len(scored), meta={"frames": scored, "frame_ids": frame_ids})
+        meta["frame_ids"] = [ids[i] for i in scored]
+        return Plan(n_items=len(scored), meta=meta)
 
     @staticmethod
-    def label_map(ctx: StageContext) -> LabelMap:
-        """The ground truth's label map, checked against the model's (the predictions' raw ids).
+    def scorer(ctx: StageContext) -> Scorer:
+        """A fresh scorer of the model's labels against the log's ground truth.
 
         Raises:
-            ConfigError: the log has no label map, or the model predicts in another one.
+            ConfigError: the log has no label map, or the model predicts in another map and no
+                class mapping between the two exists.
         """
         gt = ctx.reader.label_map
         if gt is None:
             raise ConfigError(f"{ctx.run['data']}: the log's format has no label map to score against")
-        model = ctx.label_map
-        if model.name != gt.name or model.learning_map_inv != gt.learning_map_inv:
-            raise ConfigError(
-                f"{ctx.run['data']}: ground truth is in the {gt.name!r} label map but the model predicts "
-                f"{model.name!r} classes; score with a model of the same label map"
-            )
-        return gt
+        try:
+            return make_evaluator(ctx.config, gt, ctx.label_map)
+        except ConfigError as exc:
+            raise ConfigError(f"{ctx.run['data']}: {exc}") from None
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         reader = ctx.reader
         refs = reader.frames(ctx.sequence)
         arrays = ctx.arrays(self.labels)
-        ev = make_evaluator(ctx.config, self.label_map(ctx))
+        ev = self.scorer(ctx)
         for item in items:
             index = ctx.plan["frames"][item]
             frame_id = ctx.plan["frame_ids"][item]
@@ -154,7 +171,7 @@ class ScoreStage(Stage):
                 counts={"frames": 1, "points": row.n_points},
             )
         if items:
-            data = state_to_bytes(evaluator_state(ev))
+            data = state_to_bytes(scorer_state(ev))
             ctx.store.write_block_bytes(ctx.sequence, self.name, block_state_name(items[0]), data)
 
 

@@ -77,13 +77,27 @@ def evaluator_state(ev: PanopticEvaluator) -> dict[str, np.ndarray]:
         if seq in ev.by_sequence:
             out.update(_pq_state(ev.by_sequence[seq], f"pqseq{i}_"))
         if seq in t.seqs:
-            tables = t.seqs[seq]
-            out[f"lstq_{i}_conf"] = tables.conf.copy()
-            for name in _TABLES:
-                keys, vals = getattr(tables, name).items()
-                out[f"lstq_{i}_{name}_keys"] = keys.copy()
-                out[f"lstq_{i}_{name}_vals"] = vals.copy()
+            out.update(_lstq_tables_state(t.seqs[seq], f"lstq_{i}_"))
     return out
+
+
+def _lstq_tables_state(tables: _SeqTables, prefix: str) -> dict[str, np.ndarray]:
+    out = {f"{prefix}conf": tables.conf.copy()}
+    for name in _TABLES:
+        keys, vals = getattr(tables, name).items()
+        out[f"{prefix}{name}_keys"] = keys.copy()
+        out[f"{prefix}{name}_vals"] = vals.copy()
+    return out
+
+
+def _restore_lstq_tables(n_classes: int, state: dict[str, np.ndarray], prefix: str) -> _SeqTables:
+    tables = _SeqTables(n_classes)
+    tables.conf[:] = state[f"{prefix}conf"]
+    for name in _TABLES:
+        table = CountTable()
+        table.add(state[f"{prefix}{name}_keys"], state[f"{prefix}{name}_vals"])
+        setattr(tables, name, table)
+    return tables
 
 
 def restore_evaluator(label_map: LabelMap, state: dict[str, np.ndarray]) -> PanopticEvaluator:
@@ -106,13 +120,7 @@ def restore_evaluator(label_map: LabelMap, state: dict[str, np.ndarray]) -> Pano
             _restore_pq(acc, state, f"pqseq{i}_")
             ev.by_sequence[str(seq)] = acc
         if f"lstq_{i}_conf" in state:
-            tables = _SeqTables(c)
-            tables.conf[:] = state[f"lstq_{i}_conf"]
-            for name in _TABLES:
-                table = CountTable()
-                table.add(state[f"lstq_{i}_{name}_keys"], state[f"lstq_{i}_{name}_vals"])
-                setattr(tables, name, table)
-            t.seqs[str(seq)] = tables
+            t.seqs[str(seq)] = _restore_lstq_tables(c, state, f"lstq_{i}_")
     return ev
 
 

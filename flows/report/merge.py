@@ -16,11 +16,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dsnet_core.labels import label_map_from_class_map
-from dsnet_core.metrics import EvalResult, PanopticEvaluator
-from dsnet_core.metrics.state import restore_evaluator, state_from_bytes
+from dsnet_core.metrics import EvalResult
+from dsnet_core.metrics.nuscenes_scorer import NuScenesScorer
+from dsnet_core.metrics.scoring import Scorer, restore_scorer
+from dsnet_core.metrics.state import state_from_bytes
 from flows.report.pictures import bev_rows
 from flows.report.review import review_queue
-from flows.report.tables import HEADLINE_KEYS, REPORT_TABLES
+from flows.report.tables import HEADLINE_KEYS, REPORT_TABLES, SCORING_KEYS
 from storage.run import RunStore
 from tasks.base import CLASS_MAP
 from tasks.methods import run_pipeline
@@ -40,20 +42,47 @@ class ScoreReport:
     tables: dict[str, str] = field(default_factory=dict)
 
 
-def sequence_evaluator(store: RunStore, sequence: str, label_map) -> PanopticEvaluator | None:
-    """The merged accumulators of one sequence's finished score stage (None if not scored).
+def sequence_evaluator(store: RunStore, sequence: str, label_map, model_map=None) -> Scorer | None:
+    """The merged accumulators of one sequence's finished score stage (None if not scored), its
+    blocks merged in order.
 
     Args:
         label_map: the ground truth's label map.
+        model_map: the model's (default: the same; another goes through their class mapping).
     """
     m = store.read_manifest(sequence, SCORE)
     if m is None or m.status != "done" or m.n_items == 0:  # not scored, or no ground truth
         return None
-    ev = make_evaluator(ScoreConfig.model_validate(m.config), label_map)
+    config = ScoreConfig.model_validate(m.config)
+    ev = make_evaluator(config, label_map, model_map)
     for items in m.blocks:
         data = store.read_block_bytes(sequence, SCORE, block_state_name(items[0]))
-        ev.merge(restore_evaluator(ev.label_map, state_from_bytes(data)))
+        ev.merge(restore_scorer(make_evaluator(config, label_map, model_map), state_from_bytes(data)))
     return ev
+
+
+def scoring_columns(ev: Scorer) -> dict[str, Any]:
+    """The report's ``scoring`` columns of a scorer (tracking and expressible-class numbers are
+    null for a benchmark without them)."""
+    out: dict[str, Any] = dict.fromkeys(SCORING_KEYS)
+    out["scoring"], out["class_mapping"] = ev.label_map.name, ""
+    if isinstance(ev, NuScenesScorer):
+        out["class_mapping"] = ev.mapping.file
+        tr, sub, sub_tr = ev.tracking(), ev.result("expressible"), ev.tracking("expressible")
+        values = {
+            "pat": tr.pat,
+            "tq": tr.tq,
+            "ptq": tr.ptq,
+            "sptq": tr.sptq,
+            "pq_expressible": sub.panoptic.pq,
+            "sq_expressible": sub.panoptic.sq,
+            "rq_expressible": sub.panoptic.rq,
+            "miou_expressible": sub.panoptic.miou,
+            "lstq_expressible": sub_tr.lstq,
+            "pat_expressible": sub_tr.pat,
+        }
+        out.update({k: float(v) if math.isfinite(v) else None for k, v in values.items()})
+    return out
 
 
 def _headline(res: EvalResult) -> dict[str, float | None]:
@@ -99,10 +128,12 @@ def write_report(
     if SCORE not in pipeline or not any(_scored(store, s) for s in sequences):
         return None
     gt_map = open_log(run["data"], run.get("format", "auto"), run.get("reader_options")).label_map
-    evals = {s: ev for s in sequences if (ev := sequence_evaluator(store, s, gt_map)) is not None}
+    model = model_plan(store, pipeline, sequences)
+    model_map = label_map_from_class_map(model[CLASS_MAP]) if CLASS_MAP in model else None
+    evals = {s: ev for s in sequences if (ev := sequence_evaluator(store, s, gt_map, model_map)) is not None}
     if not evals:
         return None
-    total: PanopticEvaluator | None = None
+    total: Scorer | None = None
     seq_rows = []
     frames = _frame_table(store, sequences)
     for seq, ev in evals.items():
@@ -114,6 +145,7 @@ def write_report(
                 "frames": res.frames,
                 "points": int(sum(frames.get(seq, {}).get("n_points", []))),
                 **_headline(res),
+                **scoring_columns(ev),
                 "tp": int(p.tp[ev.spec.include].sum()),
                 "fp": int(p.fp[ev.spec.include].sum()),
                 "fn": int(p.fn[ev.spec.include].sum()),
@@ -122,11 +154,14 @@ def write_report(
         total = ev if total is None else total.merge(ev)
     res = total.result()
     spec = total.spec
+    hidden = set(total.mapping.unexpressible) if isinstance(total, NuScenesScorer) else set()
+    to_gt = total.mapping.map_labels if isinstance(total, NuScenesScorer) else None
     class_rows = [
         {
             "class_id": int(k),
             "class": spec.names[k],
             "kind": "thing" if k in spec.things else "stuff",
+            "expressible": int(k) not in hidden,
             **{
                 key: float(getattr(res.panoptic.per_class[spec.names[k]], key))
                 for key in ("pq", "sq", "rq", "iou")
@@ -135,7 +170,6 @@ def write_report(
         }
         for k in spec.include
     ]
-    model = model_plan(store, pipeline, sequences)
     run_row = {
         "run_id": str(run.get("run_id", "")),
         "root": store.uri,
@@ -147,16 +181,16 @@ def write_report(
         "frames": res.frames,
         "points": int(sum(r["points"] for r in seq_rows)),
         **_headline(res),
+        **scoring_columns(total),
         "created": time.time(),
     }
-    model_map = label_map_from_class_map(model[CLASS_MAP]) if CLASS_MAP in model else None
     out = ScoreReport(run_row, seq_rows, class_rows)
     for name, rows in (
         ("score_run", [run_row]),
         ("score_sequences", seq_rows),
         ("score_classes", class_rows),
         ("stage_timings", timing_rows(store, pipeline, sequences)),
-        ("score_bev", bev_rows(store, pipeline, run, frames, total.label_map, bev_frames)),
+        ("score_bev", bev_rows(store, pipeline, run, frames, total.label_map, bev_frames, to_gt)),
         ("review_queue", review_queue(store, pipeline, sequences, model_map, review_rows)),
     ):
         out.tables[name] = store.write_run_table(REPORT_TABLES[name], rows)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -31,12 +32,15 @@ def bev_rows(
     frames: dict[str, dict[str, list]],
     label_map: LabelMap,
     n: int,
+    pred_to_gt: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> list[dict[str, Any]]:
     """PNG pictures (prediction and ground truth) of the ``n`` worst frames.
 
     Args:
         frames: ``frame_metrics`` columns by sequence.
         label_map: the ground truth's label map (colours of both pictures).
+        pred_to_gt: the class mapping of predictions into the ground truth's raw ids, when the
+            model's label map is another (:meth:`dsnet_core.label_mapping.ClassMapping.map_labels`).
     """
     from dsnet_core.io.formats import open_log
     from dsnet_core.viz.bev import label_colours, render_bev
@@ -52,6 +56,8 @@ def bev_rows(
         scan = reader.scan(ref)
         gt = reader.labels(ref)
         pred = store.arrays(seq, labels).read_item(index, ["label"])["label"]
+        if pred_to_gt is not None:
+            pred = pred_to_gt(pred)
         extent = float(min(60.0, max(20.0, np.percentile(np.abs(scan[:, :2]), 95))))
         pics = {}
         for key, lab in (("png_pred", pred), ("png_gt", gt)):

@@ -28,6 +28,24 @@ _HEADLINE = [
     ("iou_stuff", pa.float64()),
 ]
 HEADLINE_KEYS = tuple(name for name, _ in _HEADLINE)
+# how the run was scored, and the numbers only some benchmarks have (null where they do not):
+# Panoptic nuScenes tracking metrics, and every headline number again over the classes the
+# model's classes can express (the class mapping's; the rest ignored like class 0)
+_SCORING = [
+    ("scoring", pa.string()),  # the metric family: the ground truth's label map name
+    ("class_mapping", pa.string()),  # the mapping file from the model's classes ("": none)
+    ("pat", pa.float64()),
+    ("tq", pa.float64()),
+    ("ptq", pa.float64()),
+    ("sptq", pa.float64()),
+    ("pq_expressible", pa.float64()),
+    ("sq_expressible", pa.float64()),
+    ("rq_expressible", pa.float64()),
+    ("miou_expressible", pa.float64()),
+    ("lstq_expressible", pa.float64()),
+    ("pat_expressible", pa.float64()),
+]
+SCORING_KEYS = tuple(name for name, _ in _SCORING)
 
 SCORE_RUN = TableSpec(
     "score_run",
@@ -43,6 +61,7 @@ SCORE_RUN = TableSpec(
             ("frames", pa.int64()),
             ("points", pa.int64()),
             *_HEADLINE,
+            *_SCORING,
             ("created", pa.float64()),  # unix seconds
         ]
     ),
@@ -56,6 +75,7 @@ SCORE_SEQUENCES = TableSpec(
             ("frames", pa.int64()),
             ("points", pa.int64()),
             *_HEADLINE,
+            *_SCORING,
             ("tp", pa.int64()),
             ("fp", pa.int64()),
             ("fn", pa.int64()),
@@ -70,6 +90,7 @@ SCORE_CLASSES = TableSpec(
             ("class_id", pa.int32()),  # train id
             ("class", pa.string()),
             ("kind", pa.string()),  # thing | stuff
+            ("expressible", pa.bool_()),  # the model's classes reach it (always, without a mapping)
             ("pq", pa.float64()),
             ("sq", pa.float64()),
             ("rq", pa.float64()),

@@ -1,9 +1,19 @@
-"""Export a run store's final labels (its method's labels stage) in the SemanticKITTI predictions layout.
+"""Export a run store's final labels (its method's labels stage) in the log's own terms.
 
-``OUT/sequences/SS/predictions/NNNNNN.label``: uint32 per point in the scan's own order,
-raw semantic id (``learning_map_inv``) | instance << 16 — what ``dsnet eval --pred OUT`` and
-the SemanticKITTI benchmark read. Frame names come from the ingest frame table. Plain functions:
-no Prefect.
+The output formats carry the input formats' names (``dsnet label --format`` and ``dsnet export
+--format`` agree), and a run exports in its log's format unless told otherwise:
+
+* ``semantickitti``: ``OUT/sequences/SS/predictions/<frame>.label`` -- what ``dsnet eval --pred
+  OUT`` and the SemanticKITTI benchmark read;
+* ``folder``: ``OUT/<sequence>/<scan name>.label``, one per scan file (``scan_0001.pcd`` ->
+  ``scan_0001.label``; the folder reader takes labels from ``<scan>.label`` or ``labels/``);
+* ``rosbag``: ``OUT/<bag>/<header stamp ns>.label``, one per PointCloud2 message;
+* ``nuscenes``: the devkit's results layout keyed by the log's own sample_data tokens
+  (:mod:`flows.export_nuscenes`).
+
+A ``.label`` is uint32 per point in the scan's own order: raw semantic id of the model's label map
+(``learning_map_inv``) | instance << 16. Frame names come from the ingest frame table (a folder
+scan's stem, a bag message's stamp). Plain functions: no Prefect.
 """
 
 from __future__ import annotations
@@ -88,3 +98,39 @@ def export_semantickitti(
         write_label(out / "sequences" / seq / "predictions" / f"{frame_id}.label", label)
         summary.frames[seq] += 1
     return summary
+
+
+def export_frames(
+    root: str, out: str | Path, sequences: list[str] | None = None, storage_options: dict | None = None
+) -> ExportSummary:
+    """Write ``out/<sequence>/<frame id>.label`` for every sequence whose labels stage is done (the
+    ``folder`` and ``rosbag`` layouts: a scan's file stem, or a bag message's stamp in ns).
+
+    Raises:
+        StoreError: as :func:`export_semantickitti`.
+    """
+    from dsnet_core.io.kitti import write_label
+
+    store = RunStore(root, storage_options)
+    out = Path(out)
+    summary = ExportSummary(out=out)
+    for seq, frame_id, label in final_labels(store, sequences):
+        summary.frames.setdefault(seq, 0)
+        summary.missing.setdefault(seq, [])
+        if label is None:
+            summary.missing[seq].append(frame_id)
+            continue
+        write_label(out / seq / f"{frame_id}.label", label)
+        summary.frames[seq] += 1
+    return summary
+
+
+EXPORT_FORMATS = ("semantickitti", "nuscenes", "folder", "rosbag")
+"""Output formats: the input formats' names (``nuscenes`` needs a run of a nuScenes log)."""
+
+
+def default_export_format(root: str, storage_options: dict | None = None) -> str:
+    """The format a run exports in by default: its log's (``semantickitti`` for a run of an
+    unregistered format, or one recorded before formats existed)."""
+    fmt = RunStore(root, storage_options).read_run_config().get("format", "semantickitti")
+    return fmt if fmt in EXPORT_FORMATS else "semantickitti"

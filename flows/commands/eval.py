@@ -1,4 +1,5 @@
-"""``dsnet eval``: a drop-in scorer for any SemanticKITTI-layout predictions folder.
+"""``dsnet eval``: a drop-in scorer for any SemanticKITTI-layout predictions folder, and for the
+labels of a nuScenes log against its own Panoptic nuScenes ground truth (:mod:`.eval_nuscenes`).
 
 Heavy imports live in the command body so ``dsnet --help`` stays instant.
 """
@@ -13,15 +14,29 @@ from flows.commands.common import errors_exit
 
 
 def eval_command(
-    gt: Path = typer.Option(..., "--gt", help="Ground-truth root (holds sequences/SS/labels/*.label)."),
+    gt: Path = typer.Option(
+        ...,
+        "--gt",
+        help="Ground-truth root: SemanticKITTI (sequences/SS/labels/*.label) or a nuScenes log "
+        "(Panoptic nuScenes ground truth, scored in the nuScenes metrics).",
+    ),
     pred: Path = typer.Option(
-        ..., "--pred", help="Prediction root (holds sequences/SS/predictions/*.label)."
+        ...,
+        "--pred",
+        help="Prediction root: sequences/SS/predictions/*.label, or for a nuScenes log also the "
+        "results of `dsnet export --format nuscenes` (panoptic/<split>/).",
     ),
     sequences: str = typer.Option(
-        None, help="Comma-separated sequences (default: the config's valid split)."
+        None, help="Comma-separated sequences or scenes (default: the config's valid split; nuScenes: all)."
     ),
     data_config: Path = typer.Option(
-        None, "--data-config", help="SemanticKITTI-style label YAML (default: the bundled semantic-kitti)."
+        None,
+        "--data-config",
+        help="SemanticKITTI-style label YAML (default: the bundled semantic-kitti); for a nuScenes log, "
+        "the model's label map, mapped to nuScenes classes through package data.",
+    ),
+    split: str = typer.Option(
+        None, "--split", help="nuScenes results: the split folder (default: the only one)."
     ),
     min_points: int = typer.Option(
         None, "--min-points", help="Minimum segment size (default: config's, 50)."
@@ -29,7 +44,13 @@ def eval_command(
     mode: str = typer.Option("official", help="official (benchmark-exact) or corrected."),
     json_out: Path = typer.Option(None, "--json", help="Also write the scores to this JSON file."),
 ) -> None:
-    """Score predictions against ground truth: PQ family, mIoU and LSTQ, paired by file name."""
+    """Score predictions against ground truth: PQ family, mIoU and LSTQ, paired by file name; for a
+    nuScenes log, the Panoptic nuScenes metrics (PQ family with min points 15, LSTQ, PAT) over all 16
+    challenge classes and over those the model's classes can express."""
+    from dsnet_core.io.nuscenes_reader import find_versions
+
+    if find_versions(gt):  # a nuScenes log (v1.0-*/ tables)
+        return _eval_nuscenes(gt, pred, sequences, data_config, split, json_out)
     with errors_exit():
         result = score_predictions(
             gt,
@@ -46,6 +67,20 @@ def eval_command(
 
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+        typer.echo(f"wrote {json_out}")
+
+
+def _eval_nuscenes(gt, pred, sequences, data_config, split, json_out) -> None:
+    from flows.commands.eval_nuscenes import print_nuscenes, score_nuscenes
+
+    with errors_exit():
+        scorer = score_nuscenes(gt, pred, sequences.split(",") if sequences else None, data_config, split)
+    print_nuscenes(scorer)
+    if json_out is not None:
+        import json
+
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(scorer.summary(), indent=2) + "\n")
         typer.echo(f"wrote {json_out}")
 
 

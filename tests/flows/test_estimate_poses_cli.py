@@ -64,7 +64,7 @@ def test_serve_pending_follows_the_flag(synth_log, tmp_path):
         (log / "sequences" / "00" / name).unlink()
     store = RunStore(tmp_path / "run")
     stages = {"ingest": {"estimate_poses": True}}
-    run = {"data": str(log), "stages": stages}
+    run = {"data": str(log), "stages": req(log, store.uri, None, stages).stage_configs(P)}  # as dsnet label
     store.write_run_config("r1", run)
     for seq in ("00", "01"):
         run_stage_plain(store, P, seq, "ingest", run, "r1")

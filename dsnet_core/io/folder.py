@@ -16,6 +16,11 @@ frame order (camera-frame poses converted as in SemanticKITTI when ``calib.txt``
 TUM rows are interpolated at the frame timestamps (or taken row by row when the folder has no
 timestamps and as many rows as scans). The intensity convention is decided per sequence on its
 first scan (:func:`dsnet_core.io.intensity.infer_convention`) unless ``intensity`` states it.
+
+Not supported (yet): several scan suffixes in one folder (choose one with ``suffix``); ``.bin``
+scans other than float32 N×4 or N×5; sequences nested deeper than one sub-folder; per-point
+timestamps (no motion compensation); labels other than SemanticKITTI-encoded ``.label`` files;
+trajectories other than KITTI 3×4 rows and TUM rows.
 """
 
 from __future__ import annotations

@@ -17,6 +17,12 @@ ids are the general class indexes of ``category.json`` (checked on open).
 
 nuscenes-devkit is not used: it pins numpy < 2 and pulls matplotlib and OpenCV, which would
 downgrade this environment's numpy.
+
+Not supported (yet): the devkit's multi-sweep accumulation (``sweeps=True`` makes each sweep a
+frame of its own, not points merged into the keyframe; the ring and time-lag columns are not
+used); more than one LiDAR channel per run; ground truth for sweeps (none exists) or instances in
+lidarseg-only ground truth (instance 0: its thing PQ and tracking numbers mean nothing, mIoU does);
+the map, radar and camera tables.
 """
 
 from __future__ import annotations

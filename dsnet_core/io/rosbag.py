@@ -14,6 +14,11 @@ else ``odom``, whichever the tree has) to the cloud's ``header.frame_id``, inter
 cloud's stamp. Without such a transform the reader has no poses (``--estimate-poses`` applies);
 a ``fixed_frame`` that was asked for and is missing, or a stamp outside the transforms' time
 span (beyond ``tf_tolerance_s``), is an error.
+
+Not supported (yet): ROS 1 ``.bag`` files (not detected); compressed clouds
+(``CompressedPointCloud2``); PointCloud2 fields with ``count`` > 1 (skipped); motion compensation
+by per-point time; several LiDAR topics merged into one frame (one topic per run); labels (a bag
+has none, so it is labelled but never scored).
 """
 
 from __future__ import annotations

@@ -19,7 +19,9 @@ def outside_grid(points: np.ndarray, min_bound: Sequence[float], max_bound: Sequ
     """``(N,) bool``: True where a point's (ρ, φ, z) lies outside ``[min_bound, max_bound]`` on any axis.
 
     Computed in float32 exactly as the model computes the polar coordinates (``ρ = sqrt(x² + y²)``,
-    ``φ = atan2(y, x)``), so the points counted are the points the model clamps.
+    ``φ = atan2(y, x)``), so the points counted are the points the model clamps (with the grid's
+    default ``ours`` convention; the ``reference`` convention compares in float64 and also clamps
+    a point whose float32 φ is float32(π), which lands in the same edge cell either way).
 
     Args:
         points: ``(N, ≥3)`` x, y, z in metres (the sensor frame).

@@ -15,3 +15,17 @@ def test_dev_installs_the_formats_extra_with_its_pins():
     assert set(extras["formats"]) <= set(extras["dev"]), set(extras["formats"]) - set(extras["dev"])
     readme = (ROOT / "README.md").read_text()
     assert "pip install '.[formats]'" in readme and "rosbag" in readme
+
+
+def test_every_source_folder_is_a_package_a_wheel_ships():
+    # setuptools' find_packages skips a folder without __init__.py: a non-editable install would
+    # then lack its modules (dsnet_core/most/ once did)
+    from setuptools import find_packages
+
+    found = set(find_packages(str(ROOT), include=["dsnet_core*", "storage*", "tasks*", "flows*"]))
+    folders = {
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for top in ("dsnet_core", "storage", "tasks", "flows")
+        for p in (ROOT / top).rglob("*.py")
+    }
+    assert folders <= found, sorted(folders - found)

@@ -114,15 +114,53 @@ def export_frames(
     store = RunStore(root, storage_options)
     out = Path(out)
     summary = ExportSummary(out=out)
+    source = _SourcePoints(store)
     for seq, frame_id, label in final_labels(store, sequences):
         summary.frames.setdefault(seq, 0)
         summary.missing.setdefault(seq, [])
         if label is None:
             summary.missing[seq].append(frame_id)
             continue
-        write_label(out / seq / f"{frame_id}.label", label)
+        write_label(out / seq / f"{frame_id}.label", source.expand(seq, frame_id, label))
         summary.frames[seq] += 1
     return summary
+
+
+class _SourcePoints:
+    """Puts back the points a reader dropped as no returns (ingest's ``no_return``), unlabelled, so
+    a ``.label`` has one entry per point of the source scan or message, in its order. Only frames
+    that had such points open the log (through the run's format and reader options)."""
+
+    def __init__(self, store: RunStore) -> None:
+        self.store = store
+        self.dropped: dict[str, dict[str, int]] = {}
+        self.reader = None
+        self.refs: dict[str, dict] = {}
+
+    def expand(self, seq: str, frame_id: str, label: np.ndarray) -> np.ndarray:
+        if seq not in self.dropped:
+            table = self.store.read_table(seq, FRAMES).to_pydict()
+            counts = table.get("no_return") or [0] * len(table["frame_id"])
+            self.dropped[seq] = dict(zip(table["frame_id"], counts, strict=True))
+        if not self.dropped[seq].get(frame_id):
+            return label
+        if self.reader is None:
+            from dsnet_core.io.formats import open_log
+
+            run = self.store.read_run_config()
+            self.reader = open_log(run["data"], run.get("format", "auto"), run.get("reader_options"))
+        if seq not in self.refs:
+            self.refs[seq] = {f.frame_id: f for f in self.reader.frames(seq)}
+        keep = self.reader.kept_points(self.refs[seq][frame_id])
+        if keep is None or int(keep.sum()) != len(label):
+            raise StoreError(
+                self.store.where(seq, "ingest"),
+                f"frame {frame_id}: the log's scan no longer matches the run's ({len(label)} labelled "
+                "points); relabel it",
+            )
+        full = np.zeros(keep.shape[0], dtype=np.uint32)
+        full[keep] = label
+        return full
 
 
 EXPORT_FORMATS = ("semantickitti", "nuscenes", "folder", "rosbag")

@@ -116,9 +116,11 @@ def model_grid(infer: dict[str, Any], align: dict[str, Any]) -> dict[str, list[f
     return {"min_bound": list(grid.min_bound), "max_bound": list(grid.max_bound)}
 
 
-def parse_reader_options(pairs: list[str] | None) -> dict[str, Any]:
+def parse_reader_options(pairs: list[str] | None, **named: Any) -> dict[str, Any]:
     """``["topic=/points", "sweeps=true"]`` -> ``{"topic": "/points", "sweeps": True}``: values are
-    YAML scalars (``true``, ``5``, ``0.1``; anything else stays a string).
+    YAML scalars (``true``, ``5``, ``0.1``; anything else stays a string). ``named`` options (the
+    command line's ``--topic``, ``--fixed-frame``) are added where not None; naming one both ways
+    with different values is an error.
 
     Raises:
         ValueError: an entry without ``=`` or with an empty key.
@@ -136,6 +138,12 @@ def parse_reader_options(pairs: list[str] | None) -> dict[str, Any]:
         except yaml.YAMLError:
             parsed = value
         out[key] = parsed if isinstance(parsed, str | int | float | bool) else value
+    for key, value in named.items():
+        if value is None:
+            continue
+        if key in out and out[key] != value:
+            raise ValueError(f"reader option {key!r} given twice: {out[key]!r} and {value!r}")
+        out[key] = value
     return out
 
 

@@ -2,12 +2,13 @@
 
 Per frame: id, source path, point count, LiDAR-frame pose and where it came from, timestamp,
 checksum (blake2b of the scan's and labels' bytes), status, the source's intensity convention
-(the reader hands the model 0–1 remission whatever the source stored: :mod:`dsnet_core.io.intensity`)
-and the points outside the model's cylindrical grid (the model clamps them into the grid's edge
-cells, :mod:`dsnet_core.model.bounds`; counted in the scan's own sensor frame against the grid the
-request records in ``grid``, from the model card). With ``on_error="skip"`` a bad frame is
-quarantined with the reader's message and the rest proceeds; by default the reader's error fails
-the sequence.
+(the reader hands the model 0–1 remission whatever the source stored: :mod:`dsnet_core.io.intensity`),
+the points the reader dropped as no returns (NaN coordinates of organised clouds; exports put them
+back, unlabelled) and the points outside the model's cylindrical grid (the model clamps them into
+the grid's edge cells, :mod:`dsnet_core.model.bounds`; counted in the scan's own sensor frame
+against the grid the request records in ``grid``, from the model card). With ``on_error="skip"`` a
+bad frame is quarantined with the reader's message and the rest proceeds; by default the reader's
+error fails the sequence.
 
 A log without poses gets them from KISS-ICP odometry when ``estimate_poses`` is set
 (:mod:`dsnet_core.temporal.odometry`; LiDAR-frame poses, the first ok frame being the world, ``Tr`` =
@@ -47,6 +48,7 @@ FRAMES = TableSpec(
             ("reason", pa.string()),
             ("intensity_convention", pa.string()),  # the source's: unit | uint8 | uint16 | none
             ("outside_grid", pa.int64()),  # points outside the model's grid (clamped); null: no grid
+            ("no_return", pa.int64()),  # source points without a return (NaN), dropped by the reader
         ]
     ),
 )
@@ -103,10 +105,16 @@ def _log_pose_source(reader, frames) -> str | None:
         return "log"
 
 
+def _no_returns(reader, frame) -> int:
+    """Points of the frame's source the reader dropped as no returns (0 for formats without any)."""
+    dropped = getattr(reader, "dropped_points", None)  # optional: cached from the scan just read
+    return 0 if dropped is None else int(dropped(frame))
+
+
 class IngestStage(Stage):
     name = "ingest"
     upstream = ()
-    version = "3"  # 2: pose_source column, estimated poses; 3: intensity_convention, outside_grid
+    version = "4"  # 2: pose_source, estimated poses; 3: intensity_convention, outside_grid; 4: no_return
     Config = IngestConfig
     item = "frame"
     tables = (FRAMES,)
@@ -164,6 +172,7 @@ class IngestStage(Stage):
                 "reason": None,
                 "intensity_convention": None,
                 "outside_grid": None,
+                "no_return": None,
             }
             try:
                 scan = reader.scan(frame)
@@ -187,6 +196,7 @@ class IngestStage(Stage):
                 outside_grid=None
                 if grid is None
                 else int(outside_grid(scan, grid.min_bound, grid.max_bound).sum()),
+                no_return=_no_returns(reader, frame),
             )
             counts = {"frames": 1, "points": int(scan.shape[0]), "quarantined": 0}
             if row["outside_grid"] is not None:

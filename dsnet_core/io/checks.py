@@ -14,6 +14,24 @@ hundred metres; anything beyond 10 km is a corrupt value (a bit flip, an uniniti
 values near float32's limit overflow to inf once transformed into the world frame."""
 
 
+def drop_no_returns(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Drop the points a sensor reports without a return: NaN in x, y or z (organised PCD and
+    PointCloud2 clouds keep their grid shape that way). Other bad values (inf, far coordinates) are
+    not dropped here: :func:`check_points` refuses them.
+
+    Args:
+        xyz: float ``(M, 3)`` metres.
+
+    Returns:
+        ``(kept xyz (N, 3), keep)``: ``keep`` is bool ``(M,)`` over the source's points, or None when
+        every point has a return (then ``xyz`` is returned as it is).
+    """
+    keep = ~np.isnan(xyz).any(axis=1)
+    if keep.all():
+        return xyz, None
+    return xyz[keep], keep
+
+
 def check_points(path: str | Path, scan: np.ndarray, max_coord: float = MAX_COORD_M) -> None:
     """Reject a scan holding NaN/inf values or coordinates beyond ``max_coord``.
 

@@ -25,6 +25,8 @@ class LogSummary:
         fields: sequence -> the source's per-point fields, as the reader describes them.
         intensity: sequence -> the source's intensity convention
             (:data:`dsnet_core.io.intensity.CONVENTIONS`; every reader hands the model 0–1).
+        no_return: sequence -> source points without a return (NaN), dropped by the reader and
+            not counted in ``points``.
     """
 
     format: str = ""
@@ -36,6 +38,7 @@ class LogSummary:
     pose_source: dict[str, str | None] = field(default_factory=dict)
     fields: dict[str, str] = field(default_factory=dict)
     intensity: dict[str, str] = field(default_factory=dict)
+    no_return: dict[str, int] = field(default_factory=dict)
 
 
 def summarize(reader: LogReader, sequences: list[str] | None = None) -> LogSummary:
@@ -54,9 +57,12 @@ def summarize(reader: LogReader, sequences: list[str] | None = None) -> LogSumma
         summary.fields[seq] = fields(seq) if fields and frames else ""
         summary.intensity[seq] = reader.intensity_convention(seq) if frames else ""
         total = 0
+        dropped = getattr(reader, "dropped_points", None)
+        summary.no_return[seq] = 0
         for ref in frames:
             scan = reader.scan(ref)
             total += scan.shape[0]
+            summary.no_return[seq] += int(dropped(ref)) if dropped else 0
             label = reader.labels(ref)
             if label is None or lm is None:
                 continue

@@ -117,7 +117,9 @@ class FolderReader:
         self._times = cache(self._load_times)
         self._poses = cache(self._load_poses)
         self._layout = cache(self._sequence_layout)
-        self._counts: dict[Path, int] = {}  # points of the scans read so far (labels are checked against it)
+        # the last scan read: its path, its points in the file and its no-return mask (its labels
+        # are checked against the count and masked by the mask without reading the scan again)
+        self._last: tuple[Path, int, np.ndarray | None] | None = None
 
     # -- protocol ------------------------------------------------------------------------------
     def sequences(self) -> list[str]:
@@ -156,19 +158,39 @@ class FolderReader:
         out = np.empty((pts.xyz.shape[0], 4), dtype=np.float32)
         out[:, :3] = pts.xyz
         out[:, 3] = normalise_intensity(pts.intensity, convention, frame.scan_path, len(out))
-        self._counts[frame.scan_path] = len(out)
+        self._last = (frame.scan_path, *self._source_count(pts))
         return out
+
+    def kept_points(self, frame: FrameRef) -> np.ndarray | None:
+        """bool ``(M,)`` over the file's points: those :meth:`scan` hands out (None: all; points with
+        NaN x/y/z are no returns, :func:`dsnet_core.io.checks.drop_no_returns`)."""
+        return self._source(frame)[1]
+
+    def dropped_points(self, frame: FrameRef) -> int:
+        """Points without a return dropped from a frame's scan file."""
+        keep = self.kept_points(frame)
+        return 0 if keep is None else int(keep.size - keep.sum())
+
+    @staticmethod
+    def _source_count(pts) -> tuple[int, np.ndarray | None]:
+        return (len(pts.xyz) if pts.keep is None else len(pts.keep)), pts.keep
+
+    def _source(self, frame: FrameRef) -> tuple[int, np.ndarray | None]:
+        """(points in the scan file, no-return mask or None), reading the file unless it was the last."""
+        last = self._last
+        if last is not None and last[0] == frame.scan_path:
+            return last[1], last[2]
+        pts = read_points(frame.scan_path, self._layout(frame.sequence)[0], self.intensity_field)
+        self._last = (frame.scan_path, *self._source_count(pts))
+        return self._last[1], self._last[2]
 
     def labels(self, frame: FrameRef, n_points: int | None = None) -> np.ndarray | None:
         if frame.label_path is None:
             return None
-        if n_points is None:
-            n_points = self._counts.get(frame.scan_path)
-        if n_points is None:
-            n_points = len(
-                read_points(frame.scan_path, self._layout(frame.sequence)[0], self.intensity_field).xyz
-            )
-        label = kitti.read_label(frame.label_path, n_points)
+        count, keep = self._source(frame)
+        label = kitti.read_label(frame.label_path, count)  # one per point of the file, no returns too
+        if keep is not None:
+            label = label[keep]
         sem = (label & 0xFFFF).astype(np.int64)
         bad = sem > self.label_map.max_raw_id
         bad[~bad] = self._lut[sem[~bad]] < 0

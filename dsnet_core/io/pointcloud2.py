@@ -28,12 +28,14 @@ INTENSITY_FIELDS = ("intensity", "reflectivity")
 @dataclass
 class Cloud:
     """A decoded cloud: ``xyz`` float32 ``(N, 3)`` metres (sensor frame), ``intensity`` ``(N,)`` as
-    stored or None, the intensity field's name, and how many NaN/inf returns were dropped."""
+    stored or None, the intensity field's name, how many NaN/inf returns were dropped and ``keep``,
+    bool ``(M,)`` over the message's points, when any was (else None)."""
 
     xyz: np.ndarray
     intensity: np.ndarray | None
     field: str | None
     dropped: int
+    keep: np.ndarray | None = None
 
 
 def cloud_dtype(msg: Any, where: str | Path) -> np.dtype:
@@ -97,4 +99,4 @@ def decode_cloud(msg: Any, where: str | Path, intensity_field: str | None = None
         xyz = xyz[keep]
         intensity = None if intensity is None else intensity[keep]
     check_points(where, xyz)
-    return Cloud(xyz, intensity, field, dropped)
+    return Cloud(xyz, intensity, field, dropped, keep if dropped else None)

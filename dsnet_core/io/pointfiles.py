@@ -22,7 +22,7 @@ import numpy as np
 
 from dsnet_core.errors import MissingExtraError, PointFileFormatError
 from dsnet_core.io.asciinum import parse_numbers
-from dsnet_core.io.checks import check_points
+from dsnet_core.io.checks import check_points, drop_no_returns
 from dsnet_core.io.intensity import check_column
 from dsnet_core.io.pcd import read_pcd
 
@@ -32,11 +32,14 @@ SUFFIXES = (".bin", ".npy", ".npz", ".pcd", ".ply", ".las", ".laz")
 
 @dataclass
 class Points:
-    """One decoded scan: ``xyz`` float32 ``(N, 3)`` metres; ``intensity`` ``(N,)`` as stored or None."""
+    """One decoded scan: ``xyz`` float32 ``(N, 3)`` metres; ``intensity`` ``(N,)`` as stored or None;
+    ``keep`` bool ``(M,)`` over the file's points when points without a return (NaN x/y/z) were
+    dropped, else None."""
 
     xyz: np.ndarray
     intensity: np.ndarray | None
     field: str | None = None
+    keep: np.ndarray | None = None
 
 
 def bin_columns(sizes: list[int], first: bytes | None = None) -> int:
@@ -68,7 +71,8 @@ def read_points(path: Path, columns: int = 4, intensity_field: str | None = None
 
     Raises:
         PointFileFormatError: malformed file, no x/y/z.
-        ScanFormatError: NaN/inf or far coordinates (:func:`dsnet_core.io.checks.check_points`).
+        ScanFormatError: inf or far coordinates (:func:`dsnet_core.io.checks.check_points`); points
+            with NaN x/y/z are no returns, dropped and recorded in ``Points.keep``.
         IntensityFormatError: an intensity column of an unsupported type.
         MissingExtraError: the format's library is not installed.
     """
@@ -76,6 +80,9 @@ def read_points(path: Path, columns: int = 4, intensity_field: str | None = None
     if suffix not in _DECODERS:
         raise PointFileFormatError(path, f"unknown scan suffix {suffix!r}; known: {', '.join(SUFFIXES)}")
     pts = _DECODERS[suffix](path, columns, intensity_field)
+    pts.xyz, pts.keep = drop_no_returns(pts.xyz)
+    if pts.keep is not None and pts.intensity is not None:
+        pts.intensity = pts.intensity[pts.keep]
     check_points(path, pts.xyz)
     if pts.intensity is not None:
         check_column(pts.intensity, path, pts.field or "intensity")

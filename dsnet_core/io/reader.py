@@ -9,8 +9,13 @@ Readers hand out every finite point, however far: the model clamps points beyond
 cylindrical grid into the grid's edge cells (never drops them, so labels keep the scan's point
 count and order), and ingest records per frame the source's intensity convention and how many
 points lie outside the model's grid (``intensity_convention``, ``outside_grid`` in the frame
-table; ``docs/algorithm.md``, "Cylindrical grid"). Optional methods ``sensor_fields(sequence)``
-and ``pose_source(sequence)`` describe the source for ``dsnet describe``.
+table; ``docs/algorithm.md``, "Cylindrical grid"). Points without a return (NaN x/y/z: organised
+PCD clouds and PointCloud2 messages keep their grid shape that way) are dropped by the readers of
+formats that have them, which then offer ``dropped_points(frame) -> int`` and
+``kept_points(frame) -> bool (M,) | None`` (the mask over the source's M points; None when nothing
+was dropped): ingest records the count (``no_return``) and exports write a label for every source
+point, 0 (unlabelled) for the dropped ones. Optional methods ``sensor_fields(sequence)`` and
+``pose_source(sequence)`` describe the source for ``dsnet describe``.
 """
 
 from __future__ import annotations

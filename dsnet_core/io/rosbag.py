@@ -151,6 +151,10 @@ class RosbagReader:
             self._cloud(frame)
         return self._dropped[key]
 
+    def kept_points(self, frame: FrameRef) -> np.ndarray | None:
+        """bool ``(M,)`` over the message's points: those :meth:`scan` hands out (None: all)."""
+        return self._cloud(frame).keep
+
     def labels(self, frame: FrameRef, n_points: int | None = None) -> np.ndarray | None:
         return None
 
@@ -217,7 +221,9 @@ class RosbagReader:
                 topics = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
                 raise BagFormatError(path, f"has no sensor_msgs/msg/PointCloud2 topic (topics: {topics})")
             raise BagFormatError(
-                path, f"has several PointCloud2 topics ({', '.join(clouds)}); choose one with topic="
+                path,
+                f"has several PointCloud2 topics ({', '.join(clouds)}); "
+                "choose one with --topic (reader option topic)",
             )
         return [c for c in reader.connections if c.topic == clouds[0]]
 

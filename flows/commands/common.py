@@ -12,6 +12,10 @@ FORMAT_HELP = (
     "Log format: auto (detect), semantickitti, nuscenes, folder or rosbag; the same names as "
     "`dsnet export --format`."
 )
+TOPIC_HELP = "ROS 2 bags: the PointCloud2 topic (needed when a bag has several; reader option topic)."
+FIXED_FRAME_HELP = (
+    "ROS 2 bags: the tf frame poses are taken in (default map, else odom; reader option fixed_frame)."
+)
 READER_OPTION_HELP = (
     "A reader option KEY=VALUE, repeatable (nuscenes: sweeps=true, version=v1.0-mini; rosbag: "
     "topic=/points, fixed_frame=odom, intensity=uint16; folder: order=time, intensity=uint8, "

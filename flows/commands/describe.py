@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import FORMAT_HELP, READER_OPTION_HELP, errors_exit
+from flows.commands.common import FIXED_FRAME_HELP, FORMAT_HELP, READER_OPTION_HELP, TOPIC_HELP, errors_exit
 
 
 def describe(
@@ -14,6 +14,8 @@ def describe(
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
     format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
     reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
+    topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
+    fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
 ) -> None:
     """Check every file of a log and print its format, per sequence the frames, points per frame,
     sensor fields, intensity convention and pose source, and the class histogram."""
@@ -22,7 +24,9 @@ def describe(
     from flows.request import parse_reader_options
 
     with errors_exit():
-        reader = open_log(data, format, parse_reader_options(reader_option))
+        reader = open_log(
+            data, format, parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame)
+        )
         summary = summarize(reader, sequences.split(",") if sequences else None)
     print_log_summary(summary)
 
@@ -35,7 +39,17 @@ def print_log_summary(summary) -> None:
     console = Console(width=160)
     console.print(f"format: {summary.format}")
     table = Table(title="sequences")
-    for col in ("sequence", "frames", "points", "points/frame", "sensor fields", "intensity", "poses"):
+    cols = (
+        "sequence",
+        "frames",
+        "points",
+        "points/frame",
+        "no return",
+        "sensor fields",
+        "intensity",
+        "poses",
+    )
+    for col in cols:
         table.add_column(col, justify="right")
     for seq, n in summary.frames.items():
         pts = summary.points[seq]
@@ -45,6 +59,7 @@ def print_log_summary(summary) -> None:
             str(n),
             str(pts),
             f"{pts / max(n, 1):.0f}",
+            str(summary.no_return.get(seq, 0)),
             summary.fields.get(seq, ""),
             summary.intensity.get(seq, ""),
             source or "none (dsnet label --estimate-poses)",

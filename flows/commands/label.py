@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from flows.commands.common import FORMAT_HELP, READER_OPTION_HELP, errors_exit
+from flows.commands.common import FIXED_FRAME_HELP, FORMAT_HELP, READER_OPTION_HELP, TOPIC_HELP, errors_exit
 
 
 def label(
@@ -13,6 +13,8 @@ def label(
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
     format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
     reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
+    topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
+    fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
     method: str = typer.Option("dsnet", "--method", help="Labelling method (see the README's method table)."),
     scans: int = typer.Option(2, min=1, max=16, help="k, scans per 4D volume (1 = 3D, 2 = 4D default)."),
     stride: int = typer.Option(None, min=1, help="Step between volumes (default k-1, or 1 for k=1)."),
@@ -55,7 +57,7 @@ def label(
             root=run,
             sequences=sequences.split(",") if sequences else None,
             format=format,
-            reader_options=parse_reader_options(reader_option),
+            reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
             method=method,
             stages=stage_settings(scans, stride, checkpoint, clusterer, estimate_poses),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},

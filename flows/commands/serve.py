@@ -7,7 +7,14 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import FORMAT_HELP, READER_OPTION_HELP, errors_exit, fail
+from flows.commands.common import (
+    FIXED_FRAME_HELP,
+    FORMAT_HELP,
+    READER_OPTION_HELP,
+    TOPIC_HELP,
+    errors_exit,
+    fail,
+)
 
 
 def serve(
@@ -16,6 +23,8 @@ def serve(
     ),
     format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
     reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
+    topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
+    fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
     runs: str = typer.Option(..., "--runs", help="Run store root the labels and scores go to."),
     cron: str = typer.Option("0 * * * *", "--cron", help="When to look for new or stale sequences (cron)."),
     name: str = typer.Option(
@@ -48,7 +57,7 @@ def serve(
             data=str(watch.resolve()),
             root=runs,
             format=format,
-            reader_options=parse_reader_options(reader_option),
+            reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
             stages=stage_settings(scans, checkpoint=checkpoint, estimate_poses=estimate_poses),
             until=until,
         )

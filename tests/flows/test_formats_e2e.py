@@ -22,7 +22,16 @@ from flows.cli import app
 from flows.report import read_report_table
 from storage.run import RunStore
 from tasks.ingest import FRAMES
-from tests.dsnet_core.io.encode import bag_ns, quantised_log, write_bag, write_bin, write_nuscenes
+from tests.dsnet_core.io.encode import (
+    bag_ns,
+    frames_of,
+    quantised_log,
+    write_bag,
+    write_bin,
+    write_meta,
+    write_nuscenes,
+    write_ply,
+)
 from tests.model_helpers import make_checkpoint
 
 FAST_SHIFT = json.dumps({"kind": "dynamic_shift", "n_seeds": 200, "bandwidths": [0.2, 1.8, 3.4]})
@@ -37,12 +46,46 @@ def logs(synth_log, tmp_path_factory):
     write_bin(ref, root / "scans" / "drive1", columns=5)  # nuScenes-like .bin: intensity 0-255, ring
     (root / "bags").mkdir()
     write_bag(ref, root / "bags" / "run1", extra_topic="/points_copy")  # two topics: --topic needed
+    (root / "organised").mkdir()
+    write_bag(ref, root / "organised" / "run1", organised=True, nan_every=7)  # NaN returns in the grid
+    write_organised_pcd(ref, root / "pcd" / "drive1", every=5)
+    write_ply(ref, root / "ply" / "drive1")
     return {
         "semantickitti": src,
         "nuscenes": root / "nusc",
         "folder": root / "scans",
         "rosbag": root / "bags",
+        "pcd": root / "pcd",
+        "ply": root / "ply",
+        "organised": root / "organised",
     }
+
+
+def no_return_mask(n: int, every: int, pad_even: bool = False) -> np.ndarray:
+    """Where a NaN return sits after inserting one after every ``every - 1`` of ``n`` points (the
+    writers' rule), plus a NaN pad making the count even for a 2-row organised cloud."""
+    idx = np.arange(1, n // every + 1) * every - 1
+    m = n + len(idx)
+    keep = np.ones(m + (m % 2 if pad_even else 0), dtype=bool)
+    keep[idx + np.arange(len(idx))] = False
+    keep[m:] = False
+    return keep
+
+
+def write_organised_pcd(ref, out, every: int):
+    """Binary PCDs written by pypcd4 with a NaN point (PCL's no return) after every ``every - 1``."""
+    from pypcd4 import Encoding, PointCloud
+
+    out.mkdir(parents=True)
+    for fid, scan, _, _, _ in frames_of(ref):
+        keep = no_return_mask(len(scan), every)
+        full = np.full((len(keep), 4), np.nan, dtype=np.float32)
+        full[keep] = scan
+        full[~keep, 3] = 0
+        cols = [full[:, 0], full[:, 1], full[:, 2], np.round(full[:, 3] * 255).astype(np.uint8)]
+        pc = PointCloud.from_points(cols, ("x", "y", "z", "intensity"), [np.float32] * 3 + [np.uint8])
+        pc.save(out / f"{fid}.pcd", encoding=Encoding("binary"))
+    write_meta(ref, out)
 
 
 @pytest.fixture(scope="module")
@@ -76,28 +119,39 @@ def reference(prefect_api_url, logs, ckpt, tmp_path_factory):
     return labels, RunStore(root / "run").read_table("00", FRAMES).to_pydict()
 
 
-CASES = [  # format, sequence, --format/--reader-option arguments, source intensity convention
-    ("nuscenes", "scene-0001", [], "uint8"),
-    ("folder", "drive1", ["--format", "folder"], "uint8"),
-    ("rosbag", "run1", ["--reader-option", "topic=/points"], "unit"),
+CASES = [  # log, format, sequence, --format/--reader-option arguments, source intensity convention
+    ("nuscenes", "nuscenes", "scene-0001", [], "uint8"),
+    ("folder", "folder", "drive1", ["--format", "folder"], "uint8"),
+    ("rosbag", "rosbag", "run1", ["--topic", "/points"], "unit"),
+    ("pcd", "folder", "drive1", [], "uint8"),  # organised: NaN returns dropped, put back on export
+    ("ply", "folder", "drive1", [], "unit"),
+    ("organised", "rosbag", "run1", [], "unit"),  # 2-row clouds with NaN returns
 ]
+NO_RETURN = {"pcd": (5, False), "organised": (7, True)}  # every n-th point, padded to an even count
 
 
-@pytest.mark.parametrize(("fmt", "seq", "options", "convention"), CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize(("log", "fmt", "seq", "options", "convention"), CASES, ids=[c[0] for c in CASES])
 def test_label_exports_the_semantickitti_labels_in_the_logs_own_terms(
-    prefect_api_url, logs, ckpt, reference, tmp_path, fmt, seq, options, convention
+    prefect_api_url, logs, ckpt, reference, tmp_path, log, fmt, seq, options, convention
 ):
     want, ref_frames = reference
     run = tmp_path / "run"
-    _label(logs[fmt], run, ckpt, *options)
+    _label(logs[log], run, ckpt, *options)
     store = RunStore(run)
     config = store.read_run_config()
     assert config["format"] == fmt
-    assert config["reader_options"] == ({"topic": "/points"} if fmt == "rosbag" else {})
+    assert config["reader_options"] == ({"topic": "/points"} if "--topic" in options else {})
     frames = store.read_table(seq, FRAMES).to_pydict()
     assert frames["intensity_convention"] == [convention] * 2
+    masks = [np.ones(len(w), bool) for w in want]
+    if log in NO_RETURN:  # the labels of the points with a return, 0 where the source had none
+        masks = [no_return_mask(len(w), *NO_RETURN[log]) for w in want]
+        want = [np.zeros(len(k), np.uint32) for k in masks]
+        for full, k, w in zip(want, masks, reference[0], strict=True):
+            full[k] = w
+    assert frames["no_return"] == [int((~k).sum()) for k in masks]
     assert frames["outside_grid"] == ref_frames["outside_grid"] and min(frames["outside_grid"]) > 0
-    reader = open_log(logs[fmt], fmt, config["reader_options"])
+    reader = open_log(logs[log], fmt, config["reader_options"])
     ids = [f.frame_id for f in reader.frames(seq)]
     assert frames["frame_id"] == ids
 
@@ -114,7 +168,7 @@ def test_label_exports_the_semantickitti_labels_in_the_logs_own_terms(
                 lidarseg, read_panoptic_npz(out / "panoptic/val" / f"{token}_panoptic.npz") // 1000
             )
         assert json.loads((out / "val/submission.json").read_text())["meta"]["use_lidar"] is True
-        _nuscenes_scores_agree(store, logs[fmt], out, tmp_path)
+        _nuscenes_scores_agree(store, logs[log], out, tmp_path)
     else:  # one .label per scan file name / message stamp
         assert f"wrote {fmt} labels" in printed
         got = [np.fromfile(out / seq / f"{i}.label", dtype=np.uint32) for i in ids]
@@ -165,3 +219,58 @@ def test_a_scheduled_tick_labels_each_bag_of_a_folder_once(prefect_api_url, logs
     assert store.read_run_config()["reader_options"] == {"topic": "/points_copy"}
     assert all(store.read_manifest(s, "stitch").status == "done" for s in ("site-a", "site-b"))
     assert auto_label(params, dataset="bags")["labelled"] == []  # nothing new or stale
+
+
+DESCRIBED = [  # log, arguments, what the sequences table says
+    ("nuscenes", [], ["format: nuscenes", "scene-0001", "uint8", "ego_pose ∘ calibrated_sensor"]),
+    ("folder", [], ["format: folder", "drive1", "(.bin", "poses.txt (KITTI 3×4)"]),
+    ("pcd", [], ["format: folder", "x y z intensity (.pcd)", "10400"]),  # 5200 NaN returns per scan
+    ("rosbag", ["--topic", "/points_copy"], ["format: rosbag", "PointCloud2 /points_copy", "tf odom"]),
+    ("organised", [], ["format: rosbag", "PointCloud2 /points", "7430"]),
+]
+
+
+@pytest.mark.parametrize(("log", "options", "want"), DESCRIBED, ids=[d[0] for d in DESCRIBED])
+def test_describe_prints_format_fields_intensity_no_returns_and_poses(logs, log, options, want):
+    res = CliRunner().invoke(app, ["describe", str(logs[log]), *options], env={"COLUMNS": "240"})
+    assert res.exit_code == 0, res.output
+    for text in want:
+        assert text in res.output, (text, res.output)
+
+
+def test_a_bag_with_several_cloud_topics_names_them_and_the_option(logs):
+    res = CliRunner().invoke(app, ["describe", str(logs["rosbag"])])
+    assert res.exit_code == 2
+    assert "/points, /points_copy" in res.output and "--topic" in res.output
+    res = CliRunner().invoke(
+        app, ["describe", str(logs["rosbag"]), "--topic", "/a", "--reader-option", "topic=/b"]
+    )
+    assert res.exit_code == 2 and "given twice" in res.output
+
+
+@pytest.mark.parametrize("log", ["nuscenes", "folder"])
+def test_a_scheduled_tick_labels_each_scene_or_scan_folder_once(prefect_api_url, logs, ckpt, tmp_path, log):
+    """``dsnet serve --watch`` on a nuScenes log (one sequence per scene) and on a folder of scan
+    folders (one per folder; a folder added later is labelled by the next tick)."""
+    import shutil
+
+    from flows.request import LabelRequest, stage_settings
+    from flows.watch import auto_label
+
+    watched = tmp_path / "watched"
+    shutil.copytree(logs[log], watched)
+    request = LabelRequest(
+        data=str(watched),
+        root=str(tmp_path / "runs"),
+        stages=stage_settings(1, checkpoint=str(ckpt), clusterer=FAST_SHIFT),
+    )
+    params = request.model_dump(mode="json")
+    seqs = ["scene-0001"] if log == "nuscenes" else ["drive1"]
+    assert auto_label(params, dataset=log)["labelled"] == seqs
+    store = RunStore(tmp_path / "runs")
+    assert store.read_run_config()["format"] == log
+    assert all(store.read_manifest(s, "stitch").status == "done" for s in seqs)
+    assert auto_label(params, dataset=log)["labelled"] == []  # nothing new or stale
+    if log == "folder":
+        shutil.copytree(watched / "drive1", watched / "drive2")
+        assert auto_label(params, dataset=log)["labelled"] == ["drive2"]

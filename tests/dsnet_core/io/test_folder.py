@@ -260,7 +260,7 @@ def test_ascii_ply_truncated_and_with_faces(tmp_path):
         FolderReader(tmp_path).scan(FolderReader(tmp_path).frames(tmp_path.name)[0])
 
 
-@pytest.mark.parametrize(("value", "match"), [(np.nan, "NaN or inf"), (1e30, "beyond 10000 m")])
+@pytest.mark.parametrize(("value", "match"), [(np.inf, "NaN or inf"), (1e30, "beyond 10000 m")])
 def test_corrupt_coordinates_name_the_scan(tmp_path, value, match):
     pts = np.zeros((3, 4), np.float32)
     pts[1, 2] = value
@@ -268,3 +268,20 @@ def test_corrupt_coordinates_name_the_scan(tmp_path, value, match):
     with pytest.raises(DataFormatError, match=match) as err:
         FolderReader(tmp_path).scan(FolderReader(tmp_path).frames(tmp_path.name)[0])
     assert str(err.value).startswith(str(tmp_path / "a.npy"))
+
+
+def test_points_without_a_return_are_dropped_counted_and_their_labels_masked(tmp_path):
+    # an organised cloud (PCL's convention): no return = NaN x, y, z; labels hold one per file point
+    pts = np.arange(24, dtype=np.float32).reshape(6, 4)
+    pts[[1, 4], :3] = np.nan
+    np.save(tmp_path / "a.npy", pts)
+    label = np.arange(6, dtype=np.uint32) % 2 * 10  # raw ids 0 and 10 (car)
+    label.tofile(tmp_path / "a.label")
+    reader = FolderReader(tmp_path)
+    frame = reader.frames(tmp_path.name)[0]
+    scan = reader.scan(frame)
+    assert scan[:, 0].tolist() == [0, 8, 12, 20]
+    assert reader.dropped_points(frame) == 2
+    assert reader.kept_points(frame).tolist() == [True, False, True, True, False, True]
+    assert reader.labels(frame).tolist() == [0, 0, 10, 10]
+    assert FolderReader(tmp_path).labels(frame).tolist() == [0, 0, 10, 10]  # without the scan read first

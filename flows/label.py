@@ -16,7 +16,7 @@ from typing import Any
 from prefect import flow, get_run_logger
 
 from flows.request import LabelRequest
-from flows.run_record import record_run, report_run
+from flows.run_record import check_same_log, new_run_id, record_run, report_run
 from flows.stage_loop import RunState, run_stage
 from storage.locks import LockSet, Owner
 from storage.run import RunStore
@@ -30,13 +30,15 @@ def label(request: LabelRequest) -> list[dict[str, Any]]:
     reader = request.open_log()
     sequences = request.sequences if request.sequences is not None else reader.sequences()
     store = RunStore(request.root, request.storage_options)
-    run_id, run = record_run(store, request, pipeline, reader.format, sequences)
+    check_same_log(store, request)
+    run_id = new_run_id()
     state = RunState(run_id, request.order(pipeline), request.options, log=get_run_logger())
-    state.log.info(
-        "run %s: %d sequences, stages %s, store %s", run_id, len(sequences), state.stages, store.uri
-    )
     forced = request.forced(pipeline)
     with stage_locks(store, pipeline, state.stages, sequences, run_id, request):
+        run = record_run(store, run_id, request, pipeline, reader.format, sequences)  # lock winners only
+        state.log.info(
+            "run %s: %d sequences, stages %s, store %s", run_id, len(sequences), state.stages, store.uri
+        )
         for stage in state.stages:
             run_stage(store, pipeline, stage, sequences, run, state, force=stage in forced)
     summary = state.rows()
@@ -99,8 +101,14 @@ def task_runner(workers: int | None = None, dask_address: str | None = None):
         logging.getLogger("distributed").setLevel(logging.WARNING)
         if dask_address:
             return DaskTaskRunner(address=dask_address)
-        return DaskTaskRunner(
-            cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True}
+        return DaskTaskRunner(  # scheduler and dashboard on loopback: nothing listens on 0.0.0.0
+            cluster_kwargs={
+                "n_workers": workers,
+                "threads_per_worker": 1,
+                "processes": True,
+                "host": "127.0.0.1",
+                "dashboard_address": "127.0.0.1:8787",
+            }
         )
     from prefect.task_runners import ThreadPoolTaskRunner
 

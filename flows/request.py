@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from tasks.base import RunOptions
 from tasks.methods import DEFAULT_METHOD, get_pipeline
@@ -52,6 +52,19 @@ class LabelRequest(BaseModel):
     until: str | None = None
     force: bool = False
     storage_options: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("sequences")
+    @classmethod
+    def _plain_sequence_names(cls, value: list[str] | None) -> list[str] | None:
+        from storage.errors import StoreError
+        from storage.names import check_plain_name
+
+        for name in value or []:
+            try:
+                check_plain_name(name)
+            except StoreError as exc:
+                raise ValueError(str(exc)) from exc
+        return value
 
     def pipeline(self) -> Pipeline:
         """The method's stages. Raises ValueError for an unknown method or stage name."""

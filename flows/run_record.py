@@ -12,6 +12,7 @@ from typing import Any
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from flows.request import LabelRequest
+from storage.errors import StoreError
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
 
@@ -40,16 +41,54 @@ def code_version() -> str:
     return out
 
 
+def new_run_id() -> str:
+    """``<UTC-less local time>-<6 hex>``: sortable by start, unique across concurrent runs."""
+    return f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:6]}"
+
+
+def check_same_log(store: RunStore, request: LabelRequest) -> None:
+    """Refuse a run store that already holds the runs of another log: its tables, report and
+    dashboard would mix the two logs' sequences (a store is one log's, labelled any number of times).
+
+    Raises:
+        StoreError: naming the store, the log it holds and the one requested.
+    """
+    try:
+        previous = store.read_run_config()
+    except StoreError:
+        return  # a new store
+    if _same_place(previous.get("data"), request.data):
+        return
+    raise StoreError(
+        store.uri,
+        f"holds runs of the log {previous.get('data')}, not {request.data}: give this log its own --run "
+        "folder (or remove this one)",
+    )
+
+
+def _same_place(a: str | None, b: str) -> bool:
+    if a is None or a == b:
+        return True
+    if "://" in a or "://" in b:
+        return a.rstrip("/") == b.rstrip("/")
+    return Path(a).resolve() == Path(b).resolve()
+
+
 def record_run(
-    store: RunStore, request: LabelRequest, pipeline: Pipeline, log_format: str, sequences: list[str]
-) -> tuple[str, dict[str, Any]]:
-    """Write the run's config to the store (``run.json`` and ``runs/<id>.json``); returns (id, config).
+    store: RunStore,
+    run_id: str,
+    request: LabelRequest,
+    pipeline: Pipeline,
+    log_format: str,
+    sequences: list[str],
+) -> dict[str, Any]:
+    """Write the run's config to the store (``run.json`` and ``runs/<id>.json``) and return it; the
+    caller holds the run's locks, so a run that lost them never rewrites ``run.json``.
 
     The config holds what every stage reads back: the log, its format and reader options, the method
     and each executed stage's settings (:meth:`~flows.request.LabelRequest.stage_configs`), and the
     run options.
     """
-    run_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:6]}"
     order = request.order(pipeline)
     run = {
         "code_version": code_version(),
@@ -64,7 +103,7 @@ def record_run(
         "started": time.time(),
     }
     store.write_run_config(run_id, run)
-    return run_id, run
+    return run
 
 
 def report_run(store: RunStore, run_id: str, summary: list[dict[str, Any]]) -> None:

@@ -31,6 +31,7 @@ from storage.contract import StageContract, TableSpec
 from storage.errors import StoreError
 from storage.fs import RootFS
 from storage.manifest import BlockFragment, Manifest
+from storage.names import check_plain_name
 from storage.tables import read_partition, read_table, remove_partition, to_table, write_partition
 
 DASHBOARD = "dashboard.html"
@@ -74,7 +75,7 @@ class RunStore:
     # -- per (sequence, stage) ---------------------------------------------------------------
     @staticmethod
     def stage_rel(sequence: str, stage: str) -> str:
-        return posixpath.join("sequences", sequence, stage)
+        return posixpath.join("sequences", check_plain_name(sequence), check_plain_name(stage, "stage name"))
 
     def where(self, sequence: str, stage: str) -> str:
         """The URL of a stage's folder (for error messages)."""

@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 from storage.contract import TableSpec
 from storage.errors import ContractError, StoreError
 from storage.fs import RootFS
+from storage.names import check_plain_name
 
 PART = "part-0.parquet"
 
@@ -25,6 +26,8 @@ def partition_rel(spec: TableSpec, partition: dict[str, str]) -> str:
     """Relative folder of one partition (``tables/frames/sequence=07``)."""
     if set(partition) != set(spec.partition):
         raise ContractError(spec.name, f"partition keys {sorted(partition)} != {list(spec.partition)}")
+    for value in partition.values():
+        check_plain_name(value, "partition value")
     parts = [f"{key}={partition[key]}" for key in spec.partition]
     return posixpath.join("tables", spec.name, *parts)
 

@@ -100,10 +100,12 @@ class AlignStage(Stage):
         def load(f: int):
             if f not in cache:
                 scan = reader.scan(refs[f])
-                labels = reader.labels(refs[f]) if with_labels else None
+                # ingest's checksum covers a frame's labels whenever it has them, even where the
+                # volumes carry none (not every frame of the sequence has labels)
+                labels = reader.labels(refs[f]) if rows[f]["has_labels"] else None
                 if frame_checksum(scan, labels) != rows[f]["checksum"]:
                     raise PoseFormatError(refs[f].scan_path, "frame changed since ingest; rerun ingest")
-                cache[f] = (scan, labels)
+                cache[f] = (scan, labels if with_labels else None)
             return cache[f]
 
         for item in items:

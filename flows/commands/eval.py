@@ -10,7 +10,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import errors_exit, fail
 
 
 def eval_command(
@@ -39,7 +39,7 @@ def eval_command(
         None, "--split", help="nuScenes results: the split folder (default: the only one)."
     ),
     min_points: int = typer.Option(
-        None, "--min-points", help="Minimum segment size (default: config's, 50)."
+        None, "--min-points", min=0, help="Minimum segment size (default: config's, 50)."
     ),
     mode: str = typer.Option("official", help="official (benchmark-exact) or corrected."),
     json_out: Path = typer.Option(None, "--json", help="Also write the scores to this JSON file."),
@@ -49,6 +49,8 @@ def eval_command(
     challenge classes and over those the model's classes can express."""
     from dsnet_core.io.nuscenes_reader import find_versions
 
+    if json_out is not None and json_out.is_dir():  # before scoring, not after
+        fail(f"--json {json_out}: is a folder; name a file (e.g. {json_out / 'scores.json'})")
     if find_versions(gt):  # a nuScenes log (v1.0-*/ tables)
         return _eval_nuscenes(gt, pred, sequences, data_config, split, json_out)
     with errors_exit():
@@ -117,9 +119,12 @@ def score_predictions(
     )
     if not seqs:
         raise ValueError("no --sequences given and the label config has no 'valid' split")
-    ignore = _learning_ignore(data_config)
-    ev = PanopticEvaluator(label_map, min_points=min_points, mode=mode, keep_rows=False, ignore=ignore)
-    pairs = pair_label_files(gt, pred, seqs)
+    if min_points is not None and min_points < 0:
+        raise ValueError(f"min_points must be >= 0, got {min_points}")
+    ev = PanopticEvaluator(
+        label_map, min_points=min_points, mode=mode, keep_rows=False, ignore=label_map.ignore
+    )
+    pairs = pair_label_files(gt, pred, seqs, label_map)  # raw ids the map does not know are refused
     columns = (TextColumn("scoring"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=Console(stderr=True), transient=True, disable=not progress) as bar:
         task = bar.add_task("frames", total=len(pairs))
@@ -127,17 +132,6 @@ def score_predictions(
             ev.add(g, p, frame=pair.frame, sequence=pair.sequence)
             bar.advance(task)
     return ev.result()
-
-
-def _learning_ignore(data_config: Path | None) -> tuple[int, ...]:
-    """Train ids marked ``true`` in the config's ``learning_ignore`` (class 0 without a config)."""
-    if data_config is None:
-        return (0,)
-    import yaml
-
-    data = yaml.safe_load(data_config.read_text()) or {}
-    ignored = tuple(int(k) for k, v in (data.get("learning_ignore") or {}).items() if v)
-    return ignored or (0,)
 
 
 def print_result(result) -> None:

@@ -174,6 +174,38 @@ def test_second_run_names_the_holder(big_log, cli_env, tmp_path):
     assert "sequences/00/ingest/lock.json: locked by another run" in msg
     assert f"pid {holder.pid}, run other-run" in msg
     assert RunStore(root).read_manifest("00", "ingest") is None  # it wrote nothing
+    assert not (root / "run.json").exists()  # not even the run record: it never held the locks
+
+
+def test_a_sequence_name_that_leaves_the_store_is_refused(big_log, cli_env, tmp_path):
+    before = sorted(p.relative_to(big_log) for p in big_log.rglob("*"))
+    res = subprocess.run(
+        cli("label", str(big_log), "--run", str(tmp_path / "run"), "--until", "ingest",
+            "--sequences", f"../../{big_log.name}/sequences/00"),
+        cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    assert "not a plain sequence name" in res.stderr and "Traceback" not in res.stderr
+    assert sorted(p.relative_to(big_log) for p in big_log.rglob("*")) == before  # nothing written there
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_run_folder_of_another_log_is_refused(big_log, cli_env, tmp_path):
+    other = make_log(tmp_path / "other", ("00",), n_frames=2)
+    root = tmp_path / "run"
+    first = subprocess.run(
+        cli("label", str(other), "--run", str(root), "--until", "ingest"),
+        cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert first.returncode == 0, first.stderr[-3000:]
+    res = subprocess.run(
+        cli("label", str(big_log), "--run", str(root), "--until", "ingest"),
+        cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 2
+    msg = " ".join(res.stderr.split())
+    assert f"holds runs of the log {other}" in msg and "its own --run folder" in msg
+    assert RunStore(root).read_run_config()["data"] == str(other)
 
 
 def _children(pid: int) -> list[tuple[int, str]]:

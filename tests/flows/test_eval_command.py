@@ -154,6 +154,44 @@ def test_data_config_sets_split_and_ignored_classes(log, tmp_path):
     assert report["pq"] == ev.result().panoptic.pq
 
 
+def test_learning_ignore_as_a_list_scores_like_the_mapping(log, tmp_path):
+    import yaml
+
+    gt_root, pred_root, _ = log
+    data = yaml.safe_load((ROOT / "dsnet_core" / "data" / "semantic-kitti.yaml").read_text())
+    data["learning_ignore"] = [0, 11]  # a list of train ids instead of the {id: bool} mapping
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    out = tmp_path / "s.json"
+    res = _invoke(
+        "--gt", gt_root, "--pred", pred_root, "--sequences", "08", "--data-config", cfg, "--json", out
+    )
+    assert res.exit_code == 0, res.output
+    assert "sidewalk" not in json.loads(out.read_text())["per_class"]
+
+
+def test_raw_ids_the_label_map_does_not_know_are_refused_naming_the_file(log, tmp_path):
+    gt_root, pred_root, _ = log
+    bad = tmp_path / "pred" / "sequences" / "08" / "predictions"
+    bad.mkdir(parents=True)
+    for p in (pred_root / "sequences" / "08" / "predictions").glob("*.label"):
+        (bad / p.name).write_bytes(p.read_bytes())
+    label = kitti.read_label(bad / "000001.label")
+    label[:5] = 12  # raw id 12: no SemanticKITTI class
+    kitti.write_label(bad / "000001.label", label)
+    res = _invoke("--gt", gt_root, "--pred", tmp_path / "pred", "--sequences", "08")
+    assert res.exit_code == 2 and "000001.label" in res.output and "12" in res.output, res.output
+    assert "Traceback" not in res.output
+
+
+def test_bad_options_are_refused_before_scoring(log, tmp_path):
+    gt_root, pred_root, _ = log
+    res = _invoke("--gt", gt_root, "--pred", pred_root, "--sequences", "08", "--json", tmp_path)
+    assert res.exit_code == 2 and "is a folder" in res.output and "Traceback" not in res.output
+    res = _invoke("--gt", gt_root, "--pred", pred_root, "--sequences", "08", "--min-points", -5)
+    assert res.exit_code == 2 and "--min-points" in res.output
+
+
 def _predictions_from(log_root: Path, out_root: Path, perturb) -> None:
     for label in sorted(log_root.glob("sequences/*/labels/*.label")):
         seq = label.parent.parent.name

@@ -93,6 +93,34 @@ def test_align_volumes_split_back_and_keep_labels(log, tmp_path):
     assert vols["ref_frame"] == [2, 4, 6] and vols["n_points"] == arrays.n_points().tolist()
 
 
+def test_a_sequence_with_one_label_file_missing_aligns_without_ground_truth(log, tmp_path):
+    (log / "sequences/00/labels/000003.label").unlink()
+    store = RunStore(tmp_path / "run")
+    run = _run(log, scans=2)
+    store.write_run_config("r1", run)
+    ingest, align = _all(store, run)  # was "frame changed since ingest" on every labelled frame
+    assert ingest.status == align.status == "done"
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
+    assert t["has_labels"] == [True, True, True, False, True, True, True]
+    assert align.plan["labels"] is False
+    assert "labels" not in store.arrays("00", P["align"].contract).read_item(0)
+
+
+def test_points_at_1e30_quarantine_their_frame_with_skip(log, tmp_path):
+    scan = log / "sequences/00/velodyne/000002.bin"
+    pts = np.fromfile(scan, np.float32).reshape(-1, 4)
+    pts[7, 1] = 1e30
+    pts.tofile(scan)
+    store = RunStore(tmp_path / "run")
+    run = _run(log, scans=1)
+    run["options"]["on_error"] = "skip"
+    store.write_run_config("r1", run)
+    _all(store, run)
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
+    assert t["status"][2] == "quarantined" and t["status"].count("ok") == 6
+    assert "000002.bin" in t["reason"][2] and "beyond 10000 m" in t["reason"][2]
+
+
 def test_quarantine_with_skip_and_clear_error_by_default(log, tmp_path):
     bad = log / "sequences/00/velodyne/000003.bin"
     bad.write_bytes(bad.read_bytes()[:-6])

@@ -1,0 +1,20 @@
+"""Bad numeric options of ``dsnet label`` are refused by name before anything runs."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from flows.cli import app
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--block-size", "0"), ("--block-size", "-3"), ("--stride", "0"), ("--scans", "0")],
+)
+def test_label_refuses_non_positive_sizes(tmp_path, option, value):
+    args = ["label", str(tmp_path), "--run", str(tmp_path / "run"), option, value]
+    res = CliRunner().invoke(app, args, env={"COLUMNS": "250"})
+    assert res.exit_code == 2
+    assert option in res.output and "greater than or equal to 1" in res.output
+    assert not (tmp_path / "run").exists()

@@ -166,6 +166,7 @@ def stage_settings(
     checkpoint: str | None = None,
     clusterer: str | None = None,
     estimate_poses: bool = False,
+    max_points: int | None = None,
 ) -> dict[str, dict[str, Any]]:
     """The per-stage configs of the command-line settings.
 
@@ -175,13 +176,17 @@ def stage_settings(
         checkpoint: model checkpoint folder (None: the bundled model), resolved to an absolute path.
         clusterer: a clusterer kind (``dbscan``) or a JSON clusterer config.
         estimate_poses: estimate poses for sequences without them.
+        max_points: ingest's per-frame point limit (None: its default).
 
     Raises:
         ValueError: ``clusterer`` is neither a kind nor valid JSON.
     """
     stages: dict[str, dict[str, Any]] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
-    if estimate_poses:
-        stages["ingest"] = {"estimate_poses": True}
+    ingest = {"estimate_poses": True} if estimate_poses else {}
+    if max_points is not None:
+        ingest["max_points"] = max_points
+    if ingest:
+        stages["ingest"] = ingest
     if checkpoint:
         stages["infer"] = {"checkpoint": str(Path(checkpoint).expanduser().resolve())}
     if clusterer:

@@ -23,8 +23,9 @@ from collections.abc import Iterator
 
 import numpy as np
 import pyarrow as pa
+from pydantic import Field
 
-from dsnet_core.errors import DataFormatError
+from dsnet_core.errors import DataFormatError, ScanFormatError
 from dsnet_core.model.bounds import outside_grid
 from dsnet_core.temporal.odometry import Odometry, OdometryError
 from storage.contract import TableSpec
@@ -79,6 +80,10 @@ class GridBounds(StageConfig):
     max_bound: tuple[float, float, float]
 
 
+MAX_POINTS = 2_000_000
+"""Default per-frame point limit: a 128-beam sensor gives ~0.3 M points per sweep."""
+
+
 class IngestConfig(StageConfig):
     """Ingest settings (with the version and the source listing, they decide the fingerprint).
 
@@ -88,10 +93,14 @@ class IngestConfig(StageConfig):
         grid: the model's grid bounds, against which each scan's points outside the grid are
             counted (``flows.request.LabelRequest.stage_configs`` fills it from the model card);
             None leaves ``outside_grid`` null.
+        max_points: the most points a frame may have: memory grows with a frame's points (about
+            1.3 GB per million at k = 1 through the model stages), so a larger frame is refused (or
+            quarantined with ``on_error="skip"``) before it reaches them.
     """
 
     estimate_poses: bool = False
     grid: GridBounds | None = None
+    max_points: int = Field(MAX_POINTS, ge=1)
 
 
 def _log_pose_source(reader, frames) -> str | None:
@@ -176,6 +185,12 @@ class IngestStage(Stage):
             }
             try:
                 scan = reader.scan(frame)
+                if scan.shape[0] > ctx.config.max_points:
+                    raise ScanFormatError(
+                        frame.scan_path,
+                        f"{scan.shape[0]} points exceed the limit of {ctx.config.max_points} per frame "
+                        "(memory grows by about 1.3 GB per million points): raise it with --max-points",
+                    )
                 labels = reader.labels(frame)
                 pose = reader.pose(frame)
                 row["timestamp"] = reader.timestamp(frame)

@@ -23,10 +23,10 @@ READER_OPTION_HELP = (
 )
 
 
-def fail(exc: BaseException | str) -> NoReturn:
-    """Print ``error: <message>`` in red on stderr and exit with code 2."""
+def fail(exc: BaseException | str, code: int = 2) -> NoReturn:
+    """Print ``error: <message>`` in red on stderr and exit with ``code`` (2: bad input or settings)."""
     typer.secho(f"error: {exc}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
+    raise typer.Exit(code=code)
 
 
 @contextlib.contextmanager

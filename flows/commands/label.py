@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import typer
 
-from flows.commands.common import FIXED_FRAME_HELP, FORMAT_HELP, READER_OPTION_HELP, TOPIC_HELP, errors_exit
+from flows.commands.common import (
+    FIXED_FRAME_HELP,
+    FORMAT_HELP,
+    READER_OPTION_HELP,
+    TOPIC_HELP,
+    errors_exit,
+)
 
 
 def label(
@@ -15,6 +24,9 @@ def label(
     reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
     topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
     fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
+    max_points: int = typer.Option(
+        None, "--max-points", min=1, help="Refuse frames with more points (default 2,000,000): memory guard."
+    ),
     method: str = typer.Option("dsnet", "--method", help="Labelling method (see the README's method table)."),
     scans: int = typer.Option(2, min=1, max=16, help="k, scans per 4D volume (1 = 3D, 2 = 4D default)."),
     stride: int = typer.Option(None, min=1, help="Step between volumes (default k-1, or 1 for k=1)."),
@@ -42,6 +54,7 @@ def label(
     lock_wait: float = typer.Option(
         0.0, min=0.0, help="Seconds to wait for another run's lock before failing."
     ),
+    debug: bool = typer.Option(False, "--debug", help="Show Prefect's tracebacks of failing tasks."),
 ) -> None:
     """Label a log into a run store (ingest → align → infer → shift → fuse → stitch → score), resuming
     whatever is already done there."""
@@ -59,34 +72,72 @@ def label(
             format=format,
             reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
             method=method,
-            stages=stage_settings(scans, stride, checkpoint, clusterer, estimate_poses),
+            stages=stage_settings(scans, stride, checkpoint, clusterer, estimate_poses, max_points),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
             from_stage=from_stage,
             until=until,
             force=force,
         )
-    summary = run_label(request, workers, dask_address)
+    summary = run_label(request, workers, dask_address, debug=debug)
     print_summary(summary)
     typer.echo(f"wrote run store {run}")
     if any(r["action"] == "failed" for r in summary):
         raise typer.Exit(code=1)
 
 
-def run_label(request, workers: int | None = None, dask_address: str | None = None) -> list[dict]:
+def run_label(
+    request, workers: int | None = None, dask_address: str | None = None, debug: bool = False
+) -> list[dict]:
     """Run ``label-dataset`` for a :class:`~flows.request.LabelRequest` with progress bars, on the
-    configured Prefect server or a temporary one; typed errors exit with code 2 and the message."""
+    configured Prefect server or a temporary one; typed errors exit with code 2 and the message
+    (Prefect's tracebacks only with ``debug``), Ctrl-C with code 130 and how to resume."""
     import os
+    import sys
 
     from flows.server import prefect_api, quiet_prefect_env
 
     quiet_prefect_env()
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")  # keep the progress bars readable
-    with errors_exit(), prefect_api():
-        from flows.label import label_dataset, task_runner
+    try:
+        with _terminate_like_ctrl_c(), errors_exit(), prefect_api():
+            from flows.label import label_dataset, task_runner
 
-        flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
-        with _progress_bars():
-            return flow(request)
+            if not debug:
+                from flows.console import hide_tracebacks
+
+                hide_tracebacks()
+            flow = label_dataset.with_options(task_runner=task_runner(workers, dask_address))
+            with _progress_bars():
+                return flow(request)
+    except KeyboardInterrupt:
+        # the locks are released and the temporary server stopped (the with blocks unwound); blocks
+        # still running in worker threads would keep this process alive until they finish (minutes
+        # on a huge frame): leave now, the store keeps what was committed
+        typer.secho(
+            "error: interrupted; finished blocks are kept: run the same command again to resume",
+            fg=typer.colors.RED,
+            err=True,
+        )
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+
+
+@contextlib.contextmanager
+def _terminate_like_ctrl_c() -> Iterator[None]:
+    """SIGTERM (a scheduler's or ``kill``'s stop) takes Ctrl-C's clean way out while the flow runs
+    (main thread only; the previous handler comes back after)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def status(root: str = typer.Argument(..., help="Run store root (folder or s3://…).")) -> None:

@@ -25,6 +25,9 @@ def serve(
     reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
     topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
     fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
+    max_points: int = typer.Option(
+        None, "--max-points", min=1, help="Refuse frames with more points (default 2,000,000): memory guard."
+    ),
     runs: str = typer.Option(..., "--runs", help="Run store root the labels and scores go to."),
     cron: str = typer.Option("0 * * * *", "--cron", help="When to look for new or stale sequences (cron)."),
     name: str = typer.Option(
@@ -58,7 +61,9 @@ def serve(
             root=runs,
             format=format,
             reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
-            stages=stage_settings(scans, checkpoint=checkpoint, estimate_poses=estimate_poses),
+            stages=stage_settings(
+                scans, checkpoint=checkpoint, estimate_poses=estimate_poses, max_points=max_points
+            ),
             until=until,
         )
         request.order(request.pipeline())  # unknown stages fail now, not at the first tick

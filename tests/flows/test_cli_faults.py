@@ -208,6 +208,52 @@ def test_a_run_folder_of_another_log_is_refused(big_log, cli_env, tmp_path):
     assert RunStore(root).read_run_config()["data"] == str(other)
 
 
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_ctrl_c_or_sigterm_stops_cleanly_and_the_run_resumes(big_log, reference, tmp_path, how):
+    """Ctrl-C at a terminal signals the whole foreground process group: the temporary Prefect
+    server (in its own session) must outlive the flow's last state report, and dsnet exits with one
+    line, no traceback; SIGTERM to dsnet alone takes the same way out. The rerun resumes to the
+    uninterrupted run's volumes."""
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
+    env.update(PYTHONPATH=str(REPO), PREFECT_HOME=str(tmp_path / "prefect-home"))
+    root = tmp_path / "run"
+    proc = subprocess.Popen(
+        cli("label", str(big_log), "--run", str(root), *ARGS), cwd=REPO, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )  # fmt: skip
+    store = RunStore(root)
+
+    def align_started() -> bool:
+        m = store.read_manifest("00", "align") if (root / "run.json").exists() else None
+        return m is not None and len(store.completed_blocks("00", "align", m.fingerprint)) >= 1
+
+    try:
+        _wait(align_started, 180, "align had started", proc)
+        t0 = time.monotonic()
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)  # what the terminal does
+        else:
+            proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, out[-3000:]
+    assert "error: interrupted" in out and "run the same command again to resume" in out
+    assert "Traceback" not in out and "ConnectError" not in out, out[-3000:]
+    assert took < 30, took
+    res = subprocess.run(
+        cli("label", str(big_log), "--run", str(root), *ARGS), cwd=REPO, env=env,
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    got, want = store.arrays("00", P["align"].contract), reference.arrays("00", P["align"].contract)
+    for i in range(N_VOLUMES):
+        assert np.array_equal(got.read_item(i)["points"], want.read_item(i)["points"])
+
+
 def _children(pid: int) -> list[tuple[int, str]]:
     out = []
     for entry in os.listdir("/proc"):

@@ -121,6 +121,24 @@ def test_points_at_1e30_quarantine_their_frame_with_skip(log, tmp_path):
     assert "000002.bin" in t["reason"][2] and "beyond 10000 m" in t["reason"][2]
 
 
+def test_a_frame_over_the_point_limit_is_refused_or_quarantined(log, tmp_path):
+    reader = SemanticKittiReader(log)
+    sizes = [reader.scan(r).shape[0] for r in reader.frames("00")]
+    limit = sorted(sizes)[-2]  # the largest frame is one point or more over it
+    big = int(np.argmax(sizes))
+    store = RunStore(tmp_path / "run")
+    run = {"data": str(log), "stages": {"ingest": {"max_points": limit}}, "options": {"block_size": 2}}
+    store.write_run_config("r1", run)
+    with pytest.raises(ScanFormatError, match=rf"{big:06d}\.bin: {sizes[big]} points exceed the limit"):
+        run_stage_plain(store, P, "00", "ingest", run, "r1")
+    run["options"]["on_error"] = "skip"
+    store.write_run_config("r2", run)
+    run_stage_plain(store, P, "00", "ingest", run, "r2")
+    t = store.read_table("00", P["ingest"].table("frames")).to_pydict()
+    assert [i for i, s in enumerate(t["status"]) if s == "quarantined"] == [big]
+    assert "--max-points" in t["reason"][big]
+
+
 def test_quarantine_with_skip_and_clear_error_by_default(log, tmp_path):
     bad = log / "sequences/00/velodyne/000003.bin"
     bad.write_bytes(bad.read_bytes()[:-6])

@@ -8,8 +8,10 @@ then finalise each sequence's stage. The error policy (``fail`` or ``skip``) is 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,7 +22,7 @@ from prefect.futures import as_completed
 
 from dsnet_core.errors import DataFormatError
 from flows.progress import BlockEvent, emit
-from storage.errors import StoreError
+from storage.errors import StoreError, as_write_error
 from storage.run import RunStore
 from tasks.base import RunOptions
 from tasks.pipeline import Pipeline
@@ -46,7 +48,22 @@ def _transient(task, task_run, state) -> bool:
 )
 def block_task(job: BlockJob) -> dict[str, Any]:
     """One (sequence, stage, block): compute and store; returns a small dict."""
-    return run_block(job)
+    where = RunStore(job.root, job.storage_options).where(job.sequence, job.stage)
+    with store_writes(where):
+        return run_block(job)
+
+
+@contextlib.contextmanager
+def store_writes(where: str) -> Iterator[None]:
+    """Turn an OSError of a full, read-only or forbidden store into a :class:`StoreWriteError` naming
+    the file (or ``where``): typed, one line, and not retried like a transient hiccup."""
+    try:
+        yield
+    except OSError as exc:
+        typed = as_write_error(exc, where)
+        if typed is None:
+            raise
+        raise typed from exc
 
 
 @dataclass
@@ -114,7 +131,8 @@ def run_stage(
         if seq in state.failed:
             continue
         try:
-            decisions[seq] = prepare_stage(store, pipeline, seq, stage, run, state.run_id, force=force)
+            with store_writes(store.where(seq, stage)):
+                decisions[seq] = prepare_stage(store, pipeline, seq, stage, run, state.run_id, force=force)
         except (DataFormatError, StoreError) as exc:
             if not skip:
                 raise
@@ -139,7 +157,12 @@ def run_stage(
     for seq, d in decisions.items():
         if seq in state.failed:
             continue
-        m = d.manifest if d.action == "skip" else finalize_stage(store, pipeline, seq, stage, d.fingerprint)
+        with store_writes(store.where(seq, stage)):
+            m = (
+                d.manifest
+                if d.action == "skip"
+                else finalize_stage(store, pipeline, seq, stage, d.fingerprint)
+            )
         state.summary.append(
             {
                 "sequence": seq,

@@ -30,3 +30,34 @@ class LockHeldError(StoreError):
 
 class LockLostError(StoreError):
     """This run's lock was taken over (its heartbeat went stale); it must stop writing."""
+
+
+class StoreWriteError(StoreError):
+    """The store cannot be written: disk full, quota, read-only or permission denied. Retrying does
+    not help; freeing space (or giving the run another place) and rerunning resumes the run."""
+
+
+WRITE_ERRNOS = {
+    28: "no space left on device",  # ENOSPC
+    122: "disk quota exceeded",  # EDQUOT
+    30: "read-only file system",  # EROFS
+    13: "permission denied",  # EACCES
+    1: "operation not permitted",  # EPERM
+}
+
+
+def as_write_error(exc: BaseException, where: str) -> StoreWriteError | None:
+    """The :class:`StoreWriteError` an ``OSError`` of writing amounts to (None for other errors).
+
+    Args:
+        exc: the error raised while writing.
+        where: the store object being written (its file when the error names none).
+    """
+    if not isinstance(exc, OSError) or exc.errno not in WRITE_ERRNOS:
+        return None
+    target = exc.filename or where
+    return StoreWriteError(
+        str(target),
+        f"cannot write: {WRITE_ERRNOS[exc.errno]} (errno {exc.errno}); free space or fix the permissions "
+        "(or label into another --run), then run the same command again to resume",
+    )

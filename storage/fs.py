@@ -21,7 +21,7 @@ from typing import Any
 
 import fsspec
 
-from storage.errors import StoreError
+from storage.errors import StoreError, as_write_error
 
 
 class RootFS:
@@ -98,12 +98,17 @@ class RootFS:
         """Write an object atomically (readers see the old or the new content, never a part)."""
         path = self.path(rel)
         if self.local:
-            os.makedirs(os.path.dirname(path), exist_ok=True)
             tmp = _tmp_name(path)
             try:
+                os.makedirs(os.path.dirname(path), exist_ok=True)
                 with open(tmp, "wb") as f:
                     f.write(data)
                 os.replace(tmp, path)
+            except OSError as exc:  # full, read-only or forbidden: typed, naming the object
+                typed = as_write_error(exc, self.url(rel))
+                if typed is None:
+                    raise
+                raise typed from exc
             finally:
                 if os.path.exists(tmp):
                     os.unlink(tmp)

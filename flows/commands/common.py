@@ -38,9 +38,14 @@ def errors_exit() -> Iterator[None]:
     from pydantic import ValidationError
 
     from dsnet_core.errors import DsnetError
-    from storage.errors import StoreError
+    from storage.errors import StoreError, as_write_error
 
     try:
         yield
     except (DsnetError, StoreError, ValueError, ValidationError) as exc:
         fail(exc)
+    except OSError as exc:  # a full or read-only disk met outside the store's own writes
+        typed = as_write_error(exc, "the output")
+        if typed is None:
+            raise
+        fail(typed)

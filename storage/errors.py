@@ -30,3 +30,14 @@ class LockHeldError(StoreError):
 
 class LockLostError(StoreError):
     """This run's lock was taken over (its heartbeat went stale); it must stop writing."""
+
+
+class DamagedStoreError(StoreError):
+    """A stored file is missing, truncated or does not match the checksum recorded when it was
+    written. ``where`` names the file; the message says how to recompute it."""
+
+    RERUN = "rerun `dsnet label` on it to recompute"
+
+    def __init__(self, where: str, problem: str, fix: str = RERUN) -> None:
+        super().__init__(where, f"{problem}; the store is damaged: {fix}")
+        self.problem = problem

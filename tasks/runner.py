@@ -326,13 +326,19 @@ def run_stage_plain(
 
 
 def stage_state(
-    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: dict | None = None
+    store: RunStore,
+    pipeline: Pipeline,
+    sequence: str,
+    stage: str,
+    run: dict | None = None,
+    full: bool = False,
 ) -> tuple[str, Manifest | None, int]:
     """(state, manifest, finished blocks) for ``dsnet status``, from the store alone.
 
     state: ``done``; ``damaged`` (done, but its files fail the store's cheap check: a rerun
     recomputes what was lost); ``partial`` (running/failed); ``stale`` (an upstream stage now has
-    another fingerprint, or the run config asks for another config); ``missing``.
+    another fingerprint, or the run config asks for another config); ``missing``. ``full``:
+    decode and hash every chunk and table file instead of the cheap check.
     """
     m = store.read_manifest(sequence, stage)
     if m is None:
@@ -345,6 +351,6 @@ def stage_state(
             return "stale", m, len(m.blocks)
     if run is not None and resolved_config(pipeline[stage], run) != m.config:
         return "stale", m, len(m.blocks)
-    if store.check_stage(sequence, pipeline[stage].contract, m):
+    if store.check_stage(sequence, pipeline[stage].contract, m, full=full):
         return "damaged", m, len(m.blocks)
     return "done", m, len(m.blocks)

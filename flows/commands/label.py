@@ -89,7 +89,15 @@ def run_label(request, workers: int | None = None, dask_address: str | None = No
             return flow(request)
 
 
-def status(root: str = typer.Argument(..., help="Run store root (folder or s3://…).")) -> None:
+def status(
+    root: str = typer.Argument(..., help="Run store root (folder or s3://…)."),
+    verify: bool = typer.Option(
+        False,
+        "--verify",
+        help="Decode every chunk and table file and compare checksums (reads the whole store), "
+        "instead of checking that each file is there with the size it was written with.",
+    ),
+) -> None:
     """Per sequence and stage: done / damaged / partial (x of y blocks) / stale / missing, with
     fingerprints; the damaged files are listed under the table."""
     from rich.console import Console
@@ -110,9 +118,9 @@ def status(root: str = typer.Argument(..., help="Run store root (folder or s3://
     for seq in sorted(set(store.sequences()) | set(run.get("sequences", []))):
         for stage in pipeline.names():
             with errors_exit():
-                state, m, n_done = stage_state(store, pipeline, seq, stage, run)
-            if state == "damaged":
-                damaged += store.check_stage(seq, pipeline[stage].contract, m)
+                state, m, n_done = stage_state(store, pipeline, seq, stage, run, full=verify)
+                if state == "damaged":
+                    damaged += store.check_stage(seq, pipeline[stage].contract, m, full=verify)
             if state == "partial":
                 state = f"partial ({n_done} of {len(m.blocks)} blocks)"
             table.add_row(

@@ -63,8 +63,8 @@ def _invoke(*args):
     return CliRunner().invoke(app, [str(a) for a in args])
 
 
-def _status(root) -> dict[str, str]:
-    res = _invoke("status", root)
+def _status(root, *options: str) -> tuple[dict[str, str], str]:
+    res = _invoke("status", root, *options)
     assert res.exit_code == 0, res.output
     states = {}
     for line in res.stdout.splitlines():
@@ -155,6 +155,8 @@ def test_truncated_chunk_is_a_typed_error_then_recomputed(finished, synth_log, t
     chunk.write_bytes(chunk.read_bytes()[: chunk.stat().st_size // 2])
 
     assert _status(root)[0]["stitch"] == "damaged"
+    states, out = _status(root, "--verify")
+    assert states["stitch"] == "damaged" and f"damaged: {chunk}" in out.replace("\n", "")
     _one_line_error(_invoke("export", root, "--out", tmp_path / "bad"), str(chunk), "bytes")
     with pytest.raises(DamagedStoreError, match="cannot be decoded"):
         RunStore(root).arrays(SEQ, P["stitch"].contract).read_item(2)

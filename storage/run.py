@@ -306,7 +306,7 @@ class RunStore:
                 if bad is None and full:
                     try:
                         arrays.read_item(item)
-                    except DamagedStoreError as exc:
+                    except StoreError as exc:  # damaged, or "not done": its done flag was overwritten
                         bad = Damage(exc.where, exc.problem, item)
                 if bad is not None:
                     out.append(bad)

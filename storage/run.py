@@ -52,6 +52,7 @@ from storage.tables import (
 )
 
 DASHBOARD = "dashboard.html"
+BLOCK_RECORD = ".b2"
 
 
 @dataclass(frozen=True)
@@ -167,16 +168,29 @@ class RunStore:
         return posixpath.join(self.stage_rel(sequence, stage), "blocks", name)
 
     def write_block_bytes(self, sequence: str, stage: str, name: str, data: bytes) -> None:
-        """A block's own output beside its fragment (written before the fragment)."""
-        self.root.write_bytes(self.block_bytes_rel(sequence, stage, name), data)
+        """A block's own output beside its fragment (written before the fragment), then its
+        record ``<name>.b2`` (size and digest; not a ``.json``, so not taken for a fragment)."""
+        rel = self.block_bytes_rel(sequence, stage, name)
+        self.root.write_bytes(rel, data)
+        self.root.write_json(rel + BLOCK_RECORD, {"size": len(data), "blake2b": digest(data)})
 
     def read_block_bytes(self, sequence: str, stage: str, name: str) -> bytes:
-        """Raises StoreError when missing."""
+        """Raises StoreError when missing, DamagedStoreError when it differs from its record."""
         rel = self.block_bytes_rel(sequence, stage, name)
         data = self.root.read_bytes(rel)
-        if data is None:
+        record = self.root.read_json(rel + BLOCK_RECORD)
+        if data is None and record is None:
             raise StoreError(self.root.url(rel), "block output missing")
+        if data is None:
+            raise DamagedStoreError(self.root.url(rel), "block output is missing", self._fresh_fix(stage))
+        if record is not None and digest(data) != record["blake2b"]:
+            problem = f"block output ({len(data)} bytes) does not match the record written with it"
+            raise DamagedStoreError(self.root.url(rel), problem, self._fresh_fix(stage))
         return data
+
+    @staticmethod
+    def _fresh_fix(stage: str) -> str:
+        return f"rerun `dsnet label` on it to recompute stage {stage!r}"
 
     def item_record_rel(self, sequence: str, stage: str, index: int) -> str:
         return posixpath.join(self.stage_rel(sequence, stage), "items", f"{index:06d}.json")
@@ -264,10 +278,28 @@ class RunStore:
             if b not in frags:
                 where = self.root.url(self.fragment_rel(sequence, contract.stage, b))
                 out.append(Damage(where, "block fragment is missing", block=b))
+        out += self._check_block_bytes(sequence, contract.stage)
         if contract.arrays and manifest.n_items:
             out += self._check_arrays(sequence, contract, frags, full)
         for spec in contract.tables:
             out += self._check_table(sequence, spec, manifest.tables.get(spec.name), full)
+        return out
+
+    def _check_block_bytes(self, sequence: str, stage: str) -> list[Damage]:
+        """Blocks' own outputs against their records: any damage makes the stage run fresh (the
+        store does not know which block wrote which output)."""
+        base = posixpath.join(self.stage_rel(sequence, stage), "blocks")
+        sizes = self.root.sizes(base)
+        out = []
+        for name in sorted(sizes):
+            if name.endswith(BLOCK_RECORD) and "/" not in name:
+                record = self.root.read_json(posixpath.join(base, name)) or {}
+                data = name[: -len(BLOCK_RECORD)]
+                found = sizes.get(data)
+                if found != record.get("size"):
+                    now = "is missing" if found is None else f"has {found} bytes"
+                    problem = f"block output {now}, {record.get('size')} when written"
+                    out.append(Damage(self.root.url(posixpath.join(base, data)), problem, whole=True))
         return out
 
     def _check_arrays(

@@ -281,3 +281,20 @@ def test_stores_without_records_still_read_and_name_undecodable_chunks(tmp_path)
     chunk.write_bytes(chunk.read_bytes()[:5])
     with pytest.raises(DamagedStoreError, match=r"points/c/1/0/0: .*`dsnet label --from-stage align`"):
         store.arrays("00", VOLUME).read_item(1)
+
+
+def test_block_outputs_are_checked_against_their_records(tmp_path):
+    store = RunStore(tmp_path)
+    contract, m = _finished_stage(store)
+    store.write_block_bytes("00", "align", "acc-000000.npz", b"accumulators" * 10)
+    assert store.read_block_bytes("00", "align", "acc-000000.npz") == b"accumulators" * 10
+    assert store.check_stage("00", contract, m) == []
+    out = tmp_path / "sequences/00/align/blocks/acc-000000.npz"
+    out.write_bytes(b"accum")
+    with pytest.raises(DamagedStoreError, match=r"acc-000000.npz: block output \(5 bytes\) does not match"):
+        store.read_block_bytes("00", "align", "acc-000000.npz")
+    (damage,) = store.check_stage("00", contract, m)
+    assert damage.whole and damage.where == str(out) and "has 5 bytes, 120 when written" in damage.problem
+    out.unlink()
+    with pytest.raises(DamagedStoreError, match="block output is missing"):
+        store.read_block_bytes("00", "align", "acc-000000.npz")

@@ -56,6 +56,9 @@ def final_labels(
 
     Raises:
         StoreError: a requested sequence has no finished labels stage, or none has.
+        DamagedStoreError: a label chunk (or the frame table) is missing, truncated or differs from
+            what was written (the store's cheap check before the first frame, then each frame's
+            digests as it is read): never a label made of fill values.
     """
     contract = labels_contract(store.read_run_config().get("labels_stage", "stitch"))
     found = False
@@ -66,11 +69,18 @@ def final_labels(
                 raise StoreError(store.where(seq, contract.stage), f"stage {contract.stage!r} is not done")
             continue
         found = True
+        damage = store.check_stage(seq, contract, m)
+        if damage:
+            raise damage[0].error()
         ids = store.read_table(seq, FRAMES)["frame_id"].to_pylist()
         arrays = store.arrays(seq, contract)
         done = arrays.done()
         for index, frame_id in enumerate(ids):
-            yield seq, frame_id, arrays.read_item(index, ["label"])["label"] if done[index] else None
+            if not done[index]:
+                arrays.check_not_done(index)  # quarantined, or its done flag was lost
+                yield seq, frame_id, None
+                continue
+            yield seq, frame_id, arrays.read_item(index, ["label"])["label"]
     if not found:
         raise StoreError(store.uri, f"no sequence has a finished {contract.stage!r} stage to export")
 

@@ -5,21 +5,41 @@ Layout of the group: for each per-point :class:`~storage.contract.ArraySpec` an 
 resolved from the plan's ``dims`` at creation, and kept in the group's attributes); ``n_points`` int32
 ``(items,)`` and ``done`` uint8 ``(items,)`` chunked per item. No shards: one writer per chunk,
 which is what keeps concurrent block writers correct (sharded writes by several writers corrupt data).
+
+Integrity: zarr reads a missing chunk as fill values (zeros) without a word, so the arrays cannot
+tell a lost chunk from a zero one by themselves. When an item is written, :meth:`StageArrays.write_item`
+returns its **item record**: ``n_points`` and, per array, the stored chunk's size (None when zarr
+stored nothing: an all-fill chunk) and the blake2b-128 digest of the item's padded row as read back.
+The runner keeps it in the item's record and its block's fragment. :meth:`StageArrays.read_item`
+checks what it reads against that record and raises :class:`~storage.errors.DamagedStoreError`
+naming the chunk file when a chunk is missing, cannot be decoded (truncated) or has other content;
+a decode error is reported the same way for items written before records existed (whose missing
+chunks read as zeros, as before: nothing recorded what was there).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import hashlib
+import posixpath
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 import zarr
 from zarr.codecs import ZstdCodec
 
 from storage.contract import StageContract
-from storage.errors import ContractError, StoreError
+from storage.errors import ContractError, DamagedStoreError, StoreError
 from storage.fs import RootFS
 
 ZSTD_LEVEL = 3
+
+
+def digest(data: bytes | np.ndarray) -> str:
+    """blake2b-128 (32 hex digits) of bytes, or of an array's C-order bytes."""
+    if isinstance(data, np.ndarray):
+        data = np.ascontiguousarray(data).tobytes()
+    return hashlib.blake2b(data, digest_size=16).hexdigest()
 
 
 def _zarr_store(root: RootFS, rel: str, read_only: bool = False):
@@ -37,12 +57,25 @@ class StageArrays:
         group: an open zarr group.
         contract: the stage's contract (array names and dtypes).
         where: URL for error messages.
+        root, rel: the store root and the group's folder (to find chunk files).
+        records: an item's record (see the module doc), or None; given by the run store.
     """
 
-    def __init__(self, group: zarr.Group, contract: StageContract, where: str) -> None:
+    def __init__(
+        self,
+        group: zarr.Group,
+        contract: StageContract,
+        where: str,
+        root: RootFS | None = None,
+        rel: str | None = None,
+        records: Callable[[int], dict[str, Any] | None] | None = None,
+    ) -> None:
         self.group = group
         self.contract = contract
         self.where = where
+        self.root = root
+        self.rel = rel
+        self.records = records
         self.names = [s.name for s in contract.arrays if s.name in group.array_keys()]
         self._arrays = {name: group[name] for name in [*self.names, "n_points", "done"]}
 
@@ -56,6 +89,7 @@ class StageArrays:
         max_points: int,
         omit: Iterable[str] = (),
         dims: Mapping[str, int] | None = None,
+        records: Callable[[int], dict[str, Any] | None] | None = None,
     ) -> StageArrays:
         """Create (overwrite) the group with every non-omitted array of the contract.
 
@@ -92,15 +126,26 @@ class StageArrays:
             )
         for name, dtype in (("n_points", "int32"), ("done", "uint8")):
             group.create_array(name, shape=(n_items,), chunks=(1,), dtype=dtype, fill_value=0)
-        return cls(group, contract, root.url(rel))
+        return cls(group, contract, root.url(rel), root, rel, records)
 
     @classmethod
-    def open(cls, root: RootFS, rel: str, contract: StageContract, read_only: bool = True) -> StageArrays:
+    def open(
+        cls,
+        root: RootFS,
+        rel: str,
+        contract: StageContract,
+        read_only: bool = True,
+        records: Callable[[int], dict[str, Any] | None] | None = None,
+    ) -> StageArrays:
         try:
             group = zarr.open_group(_zarr_store(root, rel, read_only), mode="r" if read_only else "r+")
+            return cls(group, contract, root.url(rel), root, rel, records)
         except (FileNotFoundError, zarr.errors.GroupNotFoundError) as exc:
             raise StoreError(root.url(rel), f"no arrays of stage {contract.stage!r}") from exc
-        return cls(group, contract, root.url(rel))
+        except (KeyError, ValueError, zarr.errors.BaseZarrError) as exc:  # an array's zarr.json lost or bad
+            raise DamagedStoreError(
+                root.url(rel), f"the arrays of stage {contract.stage!r} cannot be opened ({exc!r})"
+            ) from exc
 
     @property
     def n_items(self) -> int:
@@ -110,8 +155,66 @@ class StageArrays:
     def max_points(self) -> int:
         return int(self.group.attrs["max_points"])
 
-    def write_item(self, index: int, values: dict[str, np.ndarray], n_points: int) -> None:
-        """Write one item's arrays (valid prefix of ``n_points`` rows), then ``n_points``, then ``done``."""
+    # -- chunk files -------------------------------------------------------------------------------
+    def chunk_rel(self, name: str, index: int) -> str:
+        """The chunk key of item ``index`` of array ``name``, relative to the group (``label/c/1/0``)."""
+        arr = self._arrays[name]
+        return posixpath.join(name, arr.metadata.encode_chunk_key((index,) + (0,) * (arr.ndim - 1)))
+
+    def chunk_url(self, name: str, index: int) -> str:
+        """Where the chunk file of item ``index`` of array ``name`` lives (for messages)."""
+        return f"{self.where.rstrip('/')}/{self.chunk_rel(name, index)}"
+
+    def _chunk_size(self, name: str, index: int) -> int | None:
+        if self.root is None or self.rel is None:
+            return None
+        return self.root.size(posixpath.join(self.rel, self.chunk_rel(name, index)))
+
+    def _get(self, name: str, index: int, recorded: bool = True) -> np.ndarray:
+        """One item's chunk, decoded; a chunk that cannot be decoded is a DamagedStoreError.
+
+        Args:
+            recorded: whether the item has a chunk record (without one, a rerun's check cannot
+                see the damage: the message says to recompute the stage from itself).
+        """
+        try:
+            return self._arrays[name][index]
+        except Exception as exc:  # zstd/bytes codec errors: a truncated or overwritten chunk
+            size = self._chunk_size(name, index)
+            raise DamagedStoreError(
+                self.chunk_url(name, index),
+                f"chunk of item {index} cannot be decoded ({size} bytes: {exc})",
+                DamagedStoreError.RERUN if recorded else self._legacy_fix(),
+            ) from exc
+
+    def _legacy_fix(self) -> str:
+        return (
+            f"it was written without a checksum record, so rerun `dsnet label --from-stage "
+            f"{self.contract.stage}` to recompute it"
+        )
+
+    def _damaged(self, name: str, index: int, recorded: dict[str, Any] | None) -> DamagedStoreError:
+        size = self._chunk_size(name, index)
+        if size is None and (recorded or {}).get("size") is not None:
+            problem = f"chunk of item {index} is missing (recorded {recorded['size']} bytes)"
+        else:
+            problem = f"chunk of item {index} does not match the checksum recorded when it was written"
+        return DamagedStoreError(self.chunk_url(name, index), problem)
+
+    # -- items -------------------------------------------------------------------------------------
+    def write_item(
+        self,
+        index: int,
+        values: dict[str, np.ndarray],
+        n_points: int,
+        before_done: Callable[[dict[str, Any]], None] | None = None,
+    ) -> dict[str, Any]:
+        """Write one item's arrays (valid prefix of ``n_points`` rows), then ``n_points``, then
+        ``before_done(record)``, then ``done``.
+
+        Returns:
+            the item's record: ``{"n_points": n, "chunks": {name: {"size": bytes or None, "blake2b": hex}}}``.
+        """
         missing = set(self.names) - set(values)
         extra = set(values) - set(self.names)
         if missing or extra:
@@ -122,6 +225,7 @@ class StageArrays:
             raise ContractError(
                 self.where, f"item {index} has {n_points} points > max_points {self.max_points}"
             )
+        chunks = {}
         for name in self.names:
             spec = self.contract.array(name)
             arr = self._arrays[name]
@@ -129,34 +233,92 @@ class StageArrays:
             if spec.per_point:
                 row = np.zeros(arr.shape[1:], dtype=arr.dtype)
                 row[:n_points] = value
-                arr[index] = row
             else:
-                arr[index] = value
+                row = np.broadcast_to(np.asarray(value, dtype=arr.dtype), arr.shape[1:])
+            arr[index] = row
+            chunks[name] = {"size": self._chunk_size(name, index), "blake2b": digest(row)}
         self._arrays["n_points"][index] = n_points
+        record = {"n_points": int(n_points), "chunks": chunks}
+        if before_done is not None:
+            before_done(record)
         self._arrays["done"][index] = 1
+        return record
 
     def read_item(self, index: int, names: Iterable[str] | None = None) -> dict[str, np.ndarray]:
-        """The valid data of one item. Raises StoreError if the item is not done."""
-        if not self._arrays["done"][index]:
+        """The valid data of one item, checked against its record.
+
+        Raises:
+            DamagedStoreError: a chunk is missing, cannot be decoded, or differs from its record.
+            StoreError: the item is not done.
+        """
+        record = self.records(index) if self.records is not None else None
+        chunks = (record or {}).get("chunks")
+        recorded = chunks is not None
+        if not self._get("done", index, recorded):
+            if chunks is not None and self._chunk_size("done", index) is None:
+                raise DamagedStoreError(
+                    self.chunk_url("done", index), f"done flag of item {index} is missing (item was written)"
+                )
             raise StoreError(self.where, f"item {index} is not done")
-        n = int(self._arrays["n_points"][index])
+        n = int(self._get("n_points", index, recorded))
+        if chunks is not None and n != record.get("n_points", n):
+            raise self._damaged("n_points", index, None)
         out = {}
         for name in self.names if names is None else names:
             spec = self.contract.array(name)
-            value = self._arrays[name][index]
+            value = self._get(name, index, recorded)
+            if chunks is not None and name in chunks and digest(value) != chunks[name]["blake2b"]:
+                raise self._damaged(name, index, chunks[name])
             out[name] = value[:n] if spec.per_point else value
         return out
 
+    def files_intact(self, index: int, record: dict[str, Any]) -> bool:
+        """Whether an item's chunk files have the sizes its record says (True for records from
+        before chunk records)."""
+        return all(
+            c.get("size") is None or self._chunk_size(name, index) == c["size"]
+            for name, c in record.get("chunks", {}).items()
+        )
+
+    def check_not_done(self, index: int) -> None:
+        """For an item whose ``done`` flag reads 0 in a finished stage: raise DamagedStoreError if
+        the item was written (its record lists chunks) but its ``done`` chunk is gone."""
+        record = self.records(index) if self.records is not None else None
+        written = record is not None and record.get("chunks") is not None
+        if written and self._chunk_size("done", index) is None:
+            raise DamagedStoreError(
+                self.chunk_url("done", index), f"done flag of item {index} is missing (item was written)"
+            )
+
     def done(self) -> np.ndarray:
         """bool ``(items,)``."""
-        return self._arrays["done"][:].astype(bool)
+        try:
+            return self._arrays["done"][:].astype(bool)
+        except Exception as exc:
+            raise self._undecodable("done", exc) from exc
 
     def done_items(self, items) -> np.ndarray:
         """bool flags of the given items (reads only their chunks)."""
         idx = np.asarray(list(items), dtype=np.int64)
         if idx.size == 0:
             return np.zeros(0, bool)
-        return self._arrays["done"].get_orthogonal_selection((idx,)).astype(bool)
+        try:
+            return self._arrays["done"].get_orthogonal_selection((idx,)).astype(bool)
+        except Exception as exc:
+            raise self._undecodable("done", exc) from exc
 
     def n_points(self) -> np.ndarray:
-        return self._arrays["n_points"][:]
+        try:
+            return self._arrays["n_points"][:]
+        except Exception as exc:
+            raise self._undecodable("n_points", exc) from exc
+
+    def _undecodable(self, name: str, exc: BaseException) -> DamagedStoreError:
+        """A whole-array read failed: find the chunk that does not decode, to name it."""
+        for i in range(self.n_items):
+            try:
+                self._arrays[name][i]
+            except Exception:
+                problem = f"chunk of item {i} cannot be decoded ({exc})"
+                return DamagedStoreError(self.chunk_url(name, i), problem)
+        return DamagedStoreError(f"{self.where.rstrip('/')}/{name}", f"array cannot be read ({exc})")

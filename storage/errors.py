@@ -61,3 +61,14 @@ def as_write_error(exc: BaseException, where: str) -> StoreWriteError | None:
         f"cannot write: {WRITE_ERRNOS[exc.errno]} (errno {exc.errno}); free space or fix the permissions "
         "(or label into another --run), then run the same command again to resume",
     )
+
+
+class DamagedStoreError(StoreError):
+    """A stored file is missing, truncated or does not match the checksum recorded when it was
+    written. ``where`` names the file; the message says how to recompute it."""
+
+    RERUN = "rerun `dsnet label` on it to recompute"
+
+    def __init__(self, where: str, problem: str, fix: str = RERUN) -> None:
+        super().__init__(where, f"{problem}; the store is damaged: {fix}")
+        self.problem = problem

@@ -80,6 +80,40 @@ class RootFS:
             return os.path.exists(self.path(rel))
         return self.fs.exists(self.path(rel))
 
+    def size(self, rel: str) -> int | None:
+        """The object's size in bytes, or None when it does not exist."""
+        try:
+            if self.local:
+                return os.stat(self.path(rel)).st_size
+            return int(self.fs.info(self.path(rel))["size"])
+        except FileNotFoundError:
+            return None
+
+    def sizes(self, rel: str) -> dict[str, int]:
+        """Every file under the folder ``rel``, as ``{path relative to rel: size}`` (one walk, or
+        one listing on S3); empty when it does not exist."""
+        out: dict[str, int] = {}
+        if self.local:
+            base = self.path(rel)
+            for folder, _, files in os.walk(base):
+                for name in files:
+                    path = os.path.join(folder, name)
+                    try:
+                        out[os.path.relpath(path, base).replace(os.sep, "/")] = os.stat(path).st_size
+                    except FileNotFoundError:
+                        pass
+            return out
+        base = self.path(rel).rstrip("/")
+        try:
+            self.fs.invalidate_cache(base)
+            found = self.fs.find(base, detail=True)
+        except FileNotFoundError:
+            return {}
+        for path, info in found.items():
+            if info.get("type", "file") == "file":
+                out[path[len(base) + 1 :]] = int(info["size"])
+        return out
+
     def listdir(self, rel: str) -> list[str]:
         """Names (not paths) directly under ``rel``; empty when it does not exist."""
         if self.local:

@@ -38,7 +38,9 @@ class Manifest(BaseModel):
     """The record of one (sequence, stage).
 
     ``blocks`` lists the item indices of each block (the unit of work and of resume); a block is
-    complete when its fragment with this fingerprint exists.
+    complete when its fragment with this fingerprint exists. ``tables``: what ``finalize`` wrote
+    of each of the stage's tables for this sequence, ``{table: {"path", "size", "blake2b"}}``
+    (empty in manifests written before it existed: then only the file's footer can be checked).
     """
 
     stage: str
@@ -59,10 +61,16 @@ class Manifest(BaseModel):
     started: float = 0.0
     finished: float | None = None
     error: str | None = None
+    tables: dict[str, dict[str, Any]] = Field(default_factory=dict)
 
 
 class BlockFragment(BaseModel):
-    """What one block task leaves behind: written after all its items' arrays and ``done`` flags."""
+    """What one block task leaves behind: written after all its items' arrays and ``done`` flags.
+
+    ``records``: each item's record as :meth:`storage.arrays.StageArrays.write_item` returned it
+    (``n_points``, and per array the stored chunk's size and digest), by item index; empty for
+    table-only stages and in fragments written before records existed.
+    """
 
     fingerprint: str
     block: int
@@ -70,3 +78,4 @@ class BlockFragment(BaseModel):
     seconds: float
     counts: dict[str, int] = Field(default_factory=dict)
     rows: dict[str, list[dict[str, Any]]] = Field(default_factory=dict)
+    records: dict[int, dict[str, Any]] = Field(default_factory=dict)

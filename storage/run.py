@@ -18,23 +18,66 @@ Every path of the store is built here. Layout::
 
 Stages declare their arrays and tables (:class:`~storage.contract.StageContract`); the store takes
 those declarations as arguments and knows no stage by name.
+
+Integrity: each item's record (and its block's fragment) holds the sizes and digests of the
+item's chunks, the manifest those of the stage's table partitions; :meth:`RunStore.check_stage`
+compares a finished stage's files with them (cheap: one listing of the arrays and one size per
+table; ``full``: every chunk decoded and hashed) and returns what is damaged.
 """
 
 from __future__ import annotations
 
 import posixpath
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from storage.arrays import StageArrays
+from storage.arrays import StageArrays, digest
 from storage.contract import StageContract, TableSpec
-from storage.errors import StoreError
+from storage.errors import DamagedStoreError, StoreError
 from storage.fs import RootFS
 from storage.manifest import BlockFragment, Manifest
 from storage.names import check_plain_name
-from storage.tables import read_partition, read_table, remove_partition, to_table, write_partition
+from storage.tables import (
+    PART,
+    decode,
+    encode,
+    footer_ok,
+    partition_rel,
+    put_file,
+    read_partition,
+    read_table,
+    remove_partition,
+    to_table,
+    write_partition,
+)
 
 DASHBOARD = "dashboard.html"
+BLOCK_RECORD = ".b2"
+
+
+@dataclass(frozen=True)
+class Damage:
+    """One damaged file of a finished stage.
+
+    Attributes:
+        where: the file's URL.
+        problem: what is wrong with it.
+        item: the item it belongs to (recompute that item), or None.
+        block: the block whose fragment is missing (rerun that block), or None.
+        table: the table partition it is (rewrite it from the fragments), or None.
+        whole: the stage cannot be repaired item by item (its arrays do not open): run it fresh.
+    """
+
+    where: str
+    problem: str
+    item: int | None = None
+    block: int | None = None
+    table: str | None = None
+    whole: bool = False
+
+    def error(self) -> DamagedStoreError:
+        return DamagedStoreError(self.where, self.problem)
 
 
 class RunStore:
@@ -93,9 +136,16 @@ class RunStore:
         rel = posixpath.join(self.stage_rel(manifest.sequence, manifest.stage), "manifest.json")
         self.root.write_bytes(rel, manifest.model_dump_json(indent=1).encode())
 
+    def fragment_rel(self, sequence: str, stage: str, block: int) -> str:
+        return posixpath.join(self.stage_rel(sequence, stage), "blocks", f"{block:05d}.json")
+
     def write_fragment(self, sequence: str, stage: str, fragment: BlockFragment) -> None:
-        rel = posixpath.join(self.stage_rel(sequence, stage), "blocks", f"{fragment.block:05d}.json")
+        rel = self.fragment_rel(sequence, stage, fragment.block)
         self.root.write_bytes(rel, fragment.model_dump_json().encode())
+
+    def remove_fragment(self, sequence: str, stage: str, block: int) -> None:
+        """Forget a finished block (a resume reruns it)."""
+        self.root.remove(self.fragment_rel(sequence, stage, block))
 
     def fragments(self, sequence: str, stage: str, fingerprint: str) -> dict[int, BlockFragment]:
         """Finished blocks of the stage with this fingerprint."""
@@ -119,26 +169,44 @@ class RunStore:
         return posixpath.join(self.stage_rel(sequence, stage), "blocks", name)
 
     def write_block_bytes(self, sequence: str, stage: str, name: str, data: bytes) -> None:
-        """A block's own output beside its fragment (written before the fragment)."""
-        self.root.write_bytes(self.block_bytes_rel(sequence, stage, name), data)
+        """A block's own output beside its fragment (written before the fragment), then its
+        record ``<name>.b2`` (size and digest; not a ``.json``, so not taken for a fragment)."""
+        rel = self.block_bytes_rel(sequence, stage, name)
+        self.root.write_bytes(rel, data)
+        self.root.write_json(rel + BLOCK_RECORD, {"size": len(data), "blake2b": digest(data)})
 
     def read_block_bytes(self, sequence: str, stage: str, name: str) -> bytes:
-        """Raises StoreError when missing."""
+        """Raises StoreError when missing, DamagedStoreError when it differs from its record."""
         rel = self.block_bytes_rel(sequence, stage, name)
         data = self.root.read_bytes(rel)
-        if data is None:
+        record = self.root.read_json(rel + BLOCK_RECORD)
+        if data is None and record is None:
             raise StoreError(self.root.url(rel), "block output missing")
+        if data is None:
+            raise DamagedStoreError(self.root.url(rel), "block output is missing", self._fresh_fix(stage))
+        if record is not None and digest(data) != record["blake2b"]:
+            problem = f"block output ({len(data)} bytes) does not match the record written with it"
+            raise DamagedStoreError(self.root.url(rel), problem, self._fresh_fix(stage))
         return data
 
+    @staticmethod
+    def _fresh_fix(stage: str) -> str:
+        return f"rerun `dsnet label` on it to recompute stage {stage!r}"
+
+    def item_record_rel(self, sequence: str, stage: str, index: int) -> str:
+        return posixpath.join(self.stage_rel(sequence, stage), "items", f"{index:06d}.json")
+
     def write_item_record(self, sequence: str, stage: str, index: int, record: dict[str, Any]) -> None:
-        """One item's table rows and counts, written before its ``done`` flag (item-level resume)."""
-        rel = posixpath.join(self.stage_rel(sequence, stage), "items", f"{index:06d}.json")
-        self.root.write_json(rel, record)
+        """One item's table rows, counts and chunk record, written before its ``done`` flag
+        (item-level resume and integrity checks)."""
+        self.root.write_json(self.item_record_rel(sequence, stage, index), record)
 
     def read_item_record(self, sequence: str, stage: str, index: int) -> dict[str, Any] | None:
-        return self.root.read_json(
-            posixpath.join(self.stage_rel(sequence, stage), "items", f"{index:06d}.json")
-        )
+        return self.root.read_json(self.item_record_rel(sequence, stage, index))
+
+    def remove_item_record(self, sequence: str, stage: str, index: int) -> None:
+        """Forget a written item (a resume recomputes it)."""
+        self.root.remove(self.item_record_rel(sequence, stage, index))
 
     def read_stage_state(self, sequence: str, stage: str) -> dict[str, Any] | None:
         """A sequential stage's saved resume state, or None."""
@@ -152,18 +220,29 @@ class RunStore:
         else:
             self.root.write_json(rel, state)
 
+    def _records(self, sequence: str, stage: str):
+        return lambda index: self.read_item_record(sequence, stage, index)
+
     def create_arrays(
         self, sequence: str, contract: StageContract, n_items: int, max_points: int, omit=(), dims=None
     ) -> StageArrays:
         rel = posixpath.join(self.stage_rel(sequence, contract.stage), "arrays.zarr")
-        return StageArrays.create(self.root, rel, contract, n_items, max_points, omit, dims)
+        records = self._records(sequence, contract.stage)
+        return StageArrays.create(self.root, rel, contract, n_items, max_points, omit, dims, records)
 
     def arrays(self, sequence: str, contract: StageContract, read_only: bool = True) -> StageArrays:
+        """A stage's arrays; reads check each item against its record (see :mod:`storage.arrays`)."""
         rel = posixpath.join(self.stage_rel(sequence, contract.stage), "arrays.zarr")
-        return StageArrays.open(self.root, rel, contract, read_only=read_only)
+        records = self._records(sequence, contract.stage)
+        return StageArrays.open(self.root, rel, contract, read_only=read_only, records=records)
 
-    def write_table(self, sequence: str, spec: TableSpec, rows: list[dict[str, Any]]) -> str:
-        return write_partition(self.root, spec, {"sequence": sequence}, to_table(spec, rows))
+    def write_table(self, sequence: str, spec: TableSpec, rows: list[dict[str, Any]]) -> dict[str, Any]:
+        """Write one sequence's partition. Returns its record for the manifest: ``path`` (relative
+        to the root), ``size`` and ``blake2b`` of the file."""
+        rel = posixpath.join(partition_rel(spec, {"sequence": sequence}), PART)
+        data = encode(spec, to_table(spec, rows))
+        put_file(self.root, rel, data)
+        return {"path": rel, "size": len(data), "blake2b": digest(data)}
 
     def read_table(self, sequence: str, spec: TableSpec):
         """One sequence's partition of a stage's table (a pyarrow Table)."""
@@ -180,6 +259,126 @@ class RunStore:
         self.root.remove(posixpath.join(base, "items"), recursive=True)
         self.root.remove(posixpath.join(base, "arrays.zarr"), recursive=True)
         self.root.remove(posixpath.join(base, "state.json"))
+
+    # -- integrity -------------------------------------------------------------------------------
+    def check_stage(
+        self, sequence: str, contract: StageContract, manifest: Manifest, full: bool = False
+    ) -> list[Damage]:
+        """What is damaged in a finished stage's files (empty: nothing found).
+
+        Cheap (default): every block fragment is there; every recorded item's chunk files exist
+        with their recorded sizes (one listing of the arrays folder), its ``done`` and
+        ``n_points`` chunks exist; every table partition has its recorded size (a manifest from
+        before records: its footer parses). ``full`` also decodes every recorded item and
+        compares digests, and hashes every table partition. Items of fragments written before
+        records existed are checked in ``full`` mode only, for decode errors.
+        """
+        out: list[Damage] = []
+        frags = self.fragments(sequence, contract.stage, manifest.fingerprint)
+        for b in range(len(manifest.blocks)):
+            if b not in frags:
+                where = self.root.url(self.fragment_rel(sequence, contract.stage, b))
+                out.append(Damage(where, "block fragment is missing", block=b))
+        out += self._check_block_bytes(sequence, contract.stage)
+        if contract.arrays and manifest.n_items:
+            out += self._check_arrays(sequence, contract, frags, full)
+        for spec in contract.tables:
+            out += self._check_table(sequence, spec, manifest.tables.get(spec.name), full)
+        return out
+
+    def _check_block_bytes(self, sequence: str, stage: str) -> list[Damage]:
+        """Blocks' own outputs against their records: any damage makes the stage run fresh (the
+        store does not know which block wrote which output)."""
+        base = posixpath.join(self.stage_rel(sequence, stage), "blocks")
+        sizes = self.root.sizes(base)
+        out = []
+        for name in sorted(sizes):
+            if name.endswith(BLOCK_RECORD) and "/" not in name:
+                record = self.root.read_json(posixpath.join(base, name)) or {}
+                data = name[: -len(BLOCK_RECORD)]
+                found = sizes.get(data)
+                if found != record.get("size"):
+                    now = "is missing" if found is None else f"has {found} bytes"
+                    problem = f"block output {now}, {record.get('size')} when written"
+                    out.append(Damage(self.root.url(posixpath.join(base, data)), problem, whole=True))
+        return out
+
+    def _check_arrays(
+        self, sequence: str, contract: StageContract, frags: dict[int, BlockFragment], full: bool
+    ) -> list[Damage]:
+        rel = posixpath.join(self.stage_rel(sequence, contract.stage), "arrays.zarr")
+        try:
+            arrays = self.arrays(sequence, contract)
+        except StoreError as exc:
+            return [Damage(self.root.url(rel), f"arrays cannot be opened ({exc.problem})", whole=True)]
+        sizes = self.root.sizes(rel)
+        declared = {s.name for s in contract.arrays}  # a reader's contract may declare fewer arrays
+        out: list[Damage] = []
+        for frag in frags.values():
+            for item, record in sorted(frag.records.items()):
+                bad = None
+                chunks = record.get("chunks", {})
+                expected = {name: c.get("size") for name, c in chunks.items() if name in declared}
+                expected["done"] = -1  # must exist
+                if record.get("n_points"):
+                    expected["n_points"] = -1
+                for name, size in expected.items():
+                    if name not in arrays._arrays:
+                        bad = Damage(f"{arrays.where}/{name}", "array is missing", whole=True)
+                        break
+                    found = sizes.get(arrays.chunk_rel(name, item))
+                    if size is None:
+                        continue
+                    if found is None:
+                        bad = Damage(arrays.chunk_url(name, item), f"chunk of item {item} is missing", item)
+                    elif size >= 0 and found != size:
+                        problem = f"chunk of item {item} has {found} bytes, {size} when written"
+                        bad = Damage(arrays.chunk_url(name, item), problem, item)
+                    if bad is not None:
+                        break
+                if bad is None and full:
+                    try:
+                        arrays.read_item(item)
+                    except StoreError as exc:  # damaged, or "not done": its done flag was overwritten
+                        bad = Damage(exc.where, exc.problem, item)
+                if bad is not None:
+                    out.append(bad)
+            if full and not frag.records:  # fragments from before records: decode what is done
+                for item, done in zip(frag.items, arrays.done_items(frag.items), strict=True):
+                    try:
+                        if done:
+                            arrays.read_item(item)
+                    except DamagedStoreError as exc:
+                        out.append(Damage(exc.where, exc.problem, item))
+        return out
+
+    def _check_table(
+        self, sequence: str, spec: TableSpec, record: dict[str, Any] | None, full: bool
+    ) -> list[Damage]:
+        rel = posixpath.join(partition_rel(spec, {"sequence": sequence}), PART)
+        where = self.root.url(rel)
+        if record is not None and not full:
+            size = self.root.size(rel)
+            if size == record["size"]:
+                return []
+            problem = (
+                "file is missing" if size is None else f"file has {size} bytes, {record['size']} when written"
+            )
+            return [Damage(where, problem, table=spec.name)]
+        data = self.root.read_bytes(rel)
+        if data is None:
+            return [Damage(where, "file is missing", table=spec.name)]
+        if record is not None and digest(data) != record["blake2b"]:
+            problem = "file does not match the checksum recorded when it was written"
+            return [Damage(where, problem, table=spec.name)]
+        if record is None and not footer_ok(data):
+            return [Damage(where, f"parquet file cannot be read ({len(data)} bytes)", table=spec.name)]
+        if full:
+            try:
+                decode(where, data)
+            except DamagedStoreError as exc:
+                return [Damage(where, exc.problem, table=spec.name)]
+        return []
 
     # -- whole-run tables ------------------------------------------------------------------------
     def has_table(self, spec: TableSpec) -> bool:

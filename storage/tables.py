@@ -3,6 +3,10 @@
 ``tables/<name>/sequence=07/part-0.parquet``. A partition file is written under a hidden temporary
 name (``.part-0.parquet.<id>.tmp``: pyarrow's dataset discovery skips names starting with ``.``, and
 it does not end in ``.parquet``) and renamed into place, so a reader never sees a partial file.
+
+Files are written with parquet page checksums (CRC32), verified on read; a partition that cannot
+be read (truncated: no footer, a page that fails its checksum or does not decode) is a
+:class:`~storage.errors.DamagedStoreError` naming the file, never a pyarrow traceback.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from storage.contract import TableSpec
-from storage.errors import ContractError, StoreError
+from storage.errors import ContractError, DamagedStoreError, StoreError
 from storage.fs import RootFS
 from storage.names import check_plain_name
 
@@ -40,20 +44,30 @@ def to_table(spec: TableSpec, rows: list[dict]) -> pa.Table:
         raise ContractError(spec.name, f"rows do not match the table contract: {exc}") from exc
 
 
-def write_partition(root: RootFS, spec: TableSpec, partition: dict[str, str], table: pa.Table) -> str:
-    """Write one partition file atomically. Returns its relative path."""
+def encode(spec: TableSpec, table: pa.Table) -> bytes:
+    """A table's parquet file bytes (zstd, page checksums)."""
     if not table.schema.equals(spec.schema):
         raise ContractError(spec.name, f"schema {table.schema} != contract {spec.schema}")
-    rel = posixpath.join(partition_rel(spec, partition), PART)
     buf = io.BytesIO()
-    pq.write_table(table, buf, compression="zstd")
+    pq.write_table(table, buf, compression="zstd", write_page_checksum=True)
+    return buf.getvalue()
+
+
+def write_partition(root: RootFS, spec: TableSpec, partition: dict[str, str], table: pa.Table) -> str:
+    """Write one partition file atomically. Returns its relative path."""
+    rel = posixpath.join(partition_rel(spec, partition), PART)
+    put_file(root, rel, encode(spec, table))
+    return rel
+
+
+def put_file(root: RootFS, rel: str, data: bytes) -> None:
+    """Put a parquet file in place atomically (a hidden temporary name, then a rename)."""
     tmp = root.temp_name(rel)
-    root.write_bytes(tmp, buf.getvalue())
+    root.write_bytes(tmp, data)
     try:
         root.rename(tmp, rel)
     finally:
         root.remove(tmp)
-    return rel
 
 
 def read_partition(root: RootFS, spec: TableSpec, partition: dict[str, str]) -> pa.Table:
@@ -62,19 +76,37 @@ def read_partition(root: RootFS, spec: TableSpec, partition: dict[str, str]) -> 
     data = root.read_bytes(rel)
     if data is None:
         raise StoreError(root.url(rel), f"table {spec.name!r} has no partition {partition}")
-    table = pq.read_table(pa.BufferReader(data))
+    table = decode(root.url(rel), data)
     return table.select(spec.schema.names)
+
+
+def decode(where: str, data: bytes) -> pa.Table:
+    """A parquet file's table; a file that does not parse is a DamagedStoreError naming ``where``."""
+    try:
+        return pq.read_table(pa.BufferReader(data), page_checksum_verification=True)
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        raise DamagedStoreError(where, f"parquet file cannot be read ({len(data)} bytes: {exc})") from exc
+
+
+def footer_ok(data: bytes) -> bool:
+    """Whether a parquet file's footer parses (cheap: no data page is decoded)."""
+    try:
+        pq.read_metadata(pa.BufferReader(data))
+        return True
+    except (pa.ArrowException, OSError, ValueError):
+        return False
 
 
 def read_table(root: RootFS, spec: TableSpec) -> pa.Table:
     """The whole table with its partition columns as strings."""
     base = posixpath.join("tables", spec.name)
     part = ds.partitioning(spec.partition_schema, flavor="hive")
-    if root.local:
-        dataset = ds.dataset(root.path(base), format="parquet", partitioning=part)
-    else:
-        dataset = ds.dataset(root.path(base), format="parquet", partitioning=part, filesystem=root.fs)
-    return dataset.to_table()
+    fs = None if root.local else root.fs
+    try:
+        return ds.dataset(root.path(base), format="parquet", partitioning=part, filesystem=fs).to_table()
+    except (pa.ArrowException, OSError) as exc:
+        problem = f"a parquet file of table {spec.name!r} cannot be read ({exc})"
+        raise DamagedStoreError(root.url(base), problem) from exc
 
 
 def remove_partition(root: RootFS, spec: TableSpec, partition: dict[str, str]) -> None:

@@ -7,10 +7,19 @@ Resume: a block is complete when its fragment (with the stage's fingerprint) exi
 stage runs only incomplete blocks, and inside those, items of an array stage whose ``done`` flag
 is set (with their row record) are not recomputed. A kill loses at most the item in flight of each
 running block (the whole block in flight for a table-only stage such as ingest).
+
+Integrity: a stage whose manifest says done is skipped only when its files pass the store's
+cheap check (:meth:`storage.run.RunStore.check_stage`: chunk files and table partitions there
+with the sizes recorded when they were written). A damaged stage is **repaired**: each damaged
+file is logged, the damaged items are forgotten (record and block fragment) and recomputed by
+resuming the stage, every stage downstream of recomputed items is cleared (it was made from the
+lost data), and damaged table partitions are rewritten from the block fragments. A stage whose
+arrays do not open at all runs fresh.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -18,9 +27,11 @@ from typing import Any
 from storage.errors import StoreError
 from storage.locks import check_owner
 from storage.manifest import BlockFragment, Manifest, fingerprint
-from storage.run import RunStore
+from storage.run import Damage, RunStore
 from tasks.base import RunOptions, Stage, StageContext
 from tasks.pipeline import Pipeline
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -42,7 +53,7 @@ class BlockJob:
 class Decision:
     """What to do with one (sequence, stage)."""
 
-    action: str  # "skip" | "resume" | "fresh"
+    action: str  # "skip" | "resume" | "repair" | "fresh"
     fingerprint: str
     manifest: Manifest
     jobs: list[BlockJob] = field(default_factory=list)
@@ -106,9 +117,20 @@ def prepare_stage(
     inputs = spec.inputs(ctx)
     fp = fingerprint(stage, spec.version, config, upstream, inputs)
     old = store.read_manifest(sequence, stage)
-    if old is not None and old.fingerprint == fp and not force:
-        if old.status == "done":
+    action = "resume"
+    if old is not None and old.fingerprint == fp and not force and old.status == "done":
+        damage = store.check_stage(sequence, spec.contract, old)
+        if not damage:
             return Decision("skip", fp, old)
+        action = "repair"
+        _log_damage(sequence, stage, damage)
+        if any(d.whole for d in damage):
+            old = None  # cannot be repaired item by item: fresh
+        else:
+            old.status, old.run_id, old.error = "running", run_id, None
+            store.write_manifest(old)  # not done any more before anything is forgotten
+            _forget_damaged(store, pipeline, sequence, stage, old, damage)
+    if old is not None and old.fingerprint == fp and not force:
         done = store.completed_blocks(sequence, stage, fp)
         jobs = [
             _job(store, pipeline, sequence, stage, fp, run_id, b, items)
@@ -117,7 +139,7 @@ def prepare_stage(
         ]
         old.status, old.run_id, old.error = "running", run_id, None
         store.write_manifest(old)
-        return Decision("resume", fp, old, jobs)
+        return Decision(action, fp, old, jobs)
     for name in [stage, *pipeline.downstream_of(stage)]:
         store.clear_stage(sequence, pipeline[name].contract)
     plan = spec.plan(ctx)
@@ -147,6 +169,36 @@ def prepare_stage(
     return Decision("fresh", fp, manifest, jobs)
 
 
+def _log_damage(sequence: str, stage: str, damage: list[Damage], shown: int = 10) -> None:
+    items = sorted({d.item for d in damage if d.item is not None})
+    tables = sorted({d.table for d in damage if d.table is not None})
+    log.warning(
+        "sequence %s, stage %s is done but damaged (items %s, tables %s): recomputing what was lost",
+        sequence, stage, items or "none", tables or "none",
+    )  # fmt: skip
+    for d in damage[:shown]:
+        log.warning("damaged: %s: %s", d.where, d.problem)
+    if len(damage) > shown:
+        log.warning("damaged: %d more files", len(damage) - shown)
+
+
+def _forget_damaged(
+    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, manifest: Manifest, damage: list[Damage]
+) -> None:
+    """Make a damaged stage resumable: forget its damaged items (record) and the blocks holding
+    them or missing their fragment; clear the stages downstream of recomputed items."""
+    items = {d.item for d in damage if d.item is not None}
+    blocks = {d.block for d in damage if d.block is not None}
+    blocks |= {b for b, its in enumerate(manifest.blocks) if items & set(its)}
+    for item in sorted(items):
+        store.remove_item_record(sequence, stage, item)
+    for b in sorted(blocks):
+        store.remove_fragment(sequence, stage, b)
+    if items:
+        for name in pipeline.downstream_of(stage):
+            store.clear_stage(sequence, pipeline[name].contract)
+
+
 def _job(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, fp: str, run_id: str, b: int, items):
     return BlockJob(store.uri, store.storage_options, pipeline, sequence, stage, fp, run_id, b, tuple(items))
 
@@ -164,6 +216,7 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
     arrays = store.arrays(job.sequence, spec.contract, read_only=False) if spec.arrays else None
     rows: dict[str, list[dict]] = {}
     counts: dict[str, int] = {}
+    records: dict[int, dict[str, Any]] = {}
 
     def add(item_rows: dict[str, list[dict]], item_counts: dict[str, int]) -> None:
         for table, rs in item_rows.items():
@@ -176,16 +229,25 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
         kept = []
         for item, done in zip(job.items, arrays.done_items(job.items), strict=True):
             record = store.read_item_record(job.sequence, job.stage, item) if done else None
-            if record is not None and record.get("fingerprint") == job.fingerprint:
+            if (
+                record is not None
+                and record.get("fingerprint") == job.fingerprint
+                and arrays.files_intact(item, record)
+            ):
                 add(record["rows"], record["counts"])
+                if "chunks" in record:
+                    records[item] = {"n_points": record["n_points"], "chunks": record["chunks"]}
             else:
                 kept.append(item)
         todo = kept
     for res in spec.run_block(ctx, todo):
         if arrays is not None:
             record = {"fingerprint": job.fingerprint, "rows": res.rows, "counts": res.counts}
-            store.write_item_record(job.sequence, job.stage, res.index, record)  # before the done flag
-            arrays.write_item(res.index, res.arrays, res.n_points)
+
+            def before_done(chunks: dict[str, Any], index: int = res.index, record: dict = record) -> None:
+                store.write_item_record(job.sequence, job.stage, index, {**record, **chunks})
+
+            records[res.index] = arrays.write_item(res.index, res.arrays, res.n_points, before_done)
         add(res.rows, res.counts)
     check_owner(store.root, store.lock_rel(job.sequence, job.stage), job.run_id)
     frag = BlockFragment(
@@ -195,6 +257,7 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
         seconds=time.perf_counter() - t0,
         counts=counts,
         rows=rows,
+        records=records,
     )
     store.write_fragment(job.sequence, job.stage, frag)
     return {
@@ -220,7 +283,7 @@ def finalize_stage(store: RunStore, pipeline: Pipeline, sequence: str, stage: st
     for spec in pipeline[stage].tables:
         rows = [r for f in ordered for r in f.rows.get(spec.name, [])]
         rows.sort(key=lambda r: r.get("index", 0))
-        store.write_table(sequence, spec, rows)
+        manifest.tables[spec.name] = store.write_table(sequence, spec, rows)
     counts: dict[str, int] = {}
     for f in ordered:
         for key, n in f.counts.items():
@@ -263,12 +326,19 @@ def run_stage_plain(
 
 
 def stage_state(
-    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: dict | None = None
+    store: RunStore,
+    pipeline: Pipeline,
+    sequence: str,
+    stage: str,
+    run: dict | None = None,
+    full: bool = False,
 ) -> tuple[str, Manifest | None, int]:
     """(state, manifest, finished blocks) for ``dsnet status``, from the store alone.
 
-    state: ``done``; ``partial`` (running/failed); ``stale`` (an upstream stage now has another
-    fingerprint, or the run config asks for another config); ``missing``.
+    state: ``done``; ``damaged`` (done, but its files fail the store's cheap check: a rerun
+    recomputes what was lost); ``partial`` (running/failed); ``stale`` (an upstream stage now has
+    another fingerprint, or the run config asks for another config); ``missing``. ``full``:
+    decode and hash every chunk and table file instead of the cheap check.
     """
     m = store.read_manifest(sequence, stage)
     if m is None:
@@ -281,4 +351,6 @@ def stage_state(
             return "stale", m, len(m.blocks)
     if run is not None and resolved_config(pipeline[stage], run) != m.config:
         return "stale", m, len(m.blocks)
+    if store.check_stage(sequence, pipeline[stage].contract, m, full=full):
+        return "damaged", m, len(m.blocks)
     return "done", m, len(m.blocks)

@@ -140,8 +140,17 @@ def _terminate_like_ctrl_c() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def status(root: str = typer.Argument(..., help="Run store root (folder or s3://…).")) -> None:
-    """Per sequence and stage: done / partial (x of y blocks) / stale / missing, with fingerprints."""
+def status(
+    root: str = typer.Argument(..., help="Run store root (folder or s3://…)."),
+    verify: bool = typer.Option(
+        False,
+        "--verify",
+        help="Decode every chunk and table file and compare checksums (reads the whole store), "
+        "instead of checking that each file is there with the size it was written with.",
+    ),
+) -> None:
+    """Per sequence and stage: done / damaged / partial (x of y blocks) / stale / missing, with
+    fingerprints; the damaged files are listed under the table."""
     from rich.console import Console
     from rich.table import Table
 
@@ -156,9 +165,13 @@ def status(root: str = typer.Argument(..., help="Run store root (folder or s3://
     table = Table(title=f"run store {store.uri} (last run {run.get('run_id')}, method {pipeline.name})")
     for col in ("sequence", "stage", "state", "blocks", "items", "fingerprint", "seconds"):
         table.add_column(col)
+    damaged = []
     for seq in sorted(set(store.sequences()) | set(run.get("sequences", []))):
         for stage in pipeline.names():
-            state, m, n_done = stage_state(store, pipeline, seq, stage, run)
+            with errors_exit():
+                state, m, n_done = stage_state(store, pipeline, seq, stage, run, full=verify)
+                if state == "damaged":
+                    damaged += store.check_stage(seq, pipeline[stage].contract, m, full=verify)
             if state == "partial":
                 state = f"partial ({n_done} of {len(m.blocks)} blocks)"
             table.add_row(
@@ -171,6 +184,10 @@ def status(root: str = typer.Argument(..., help="Run store root (folder or s3://
                 "" if m is None or not m.timings else f"{m.timings.get('wall_s', 0):.2f}",
             )
     Console(width=140).print(table)
+    for d in damaged[:20]:
+        typer.echo(f"damaged: {d.where}: {d.problem}")
+    if damaged:
+        typer.echo(f"{len(damaged)} damaged files: `dsnet label` on this store recomputes them")
 
 
 def _progress_bars():

@@ -12,10 +12,10 @@ import pyarrow as pa
 import pytest
 
 from storage.contract import ArraySpec, StageContract, TableSpec
-from storage.errors import ContractError, LockHeldError, LockLostError, StoreError
+from storage.errors import ContractError, DamagedStoreError, LockHeldError, LockLostError, StoreError
 from storage.fs import RootFS
 from storage.locks import LockSet, Owner
-from storage.manifest import Manifest, fingerprint
+from storage.manifest import BlockFragment, Manifest, fingerprint
 from storage.run import RunStore
 from storage.tables import read_partition, read_table, to_table, write_partition
 
@@ -188,3 +188,113 @@ def test_stale_locks_are_taken_over(tmp_path):
         live.check("t/lock.json")
     live.release_all()
     assert root.read_json("t/lock.json")["run_id"] == "thief"  # not ours: not removed
+
+
+def _finished_stage(store: RunStore, n_items: int = 4) -> tuple[StageContract, Manifest]:
+    """A finished 'align' stage of sequence 00 written as the runner writes one: each item's
+    record before its done flag, one block fragment with the records, the table, the manifest.
+    The last item is all zeros (zarr stores no chunk for it)."""
+    arrays = store.create_arrays("00", VOLUME, n_items=n_items, max_points=10, omit=("probs",))
+    records = {}
+    for i in range(n_items):
+        v = 0 if i == n_items - 1 else i + 1
+        vals = {"points": np.full((6, 4), v), "labels": np.full(6, v)}
+        vals.update(source_frame=np.full(6, v), source_index=np.arange(6) * min(v, 1))
+
+        def before_done(chunks, i=i):
+            record = {"fingerprint": "f", "rows": {}, "counts": {}, **chunks}
+            store.write_item_record("00", "align", i, record)
+
+        records[i] = arrays.write_item(i, vals, 6, before_done)
+    items = list(range(n_items))
+    store.write_fragment(
+        "00", "align", BlockFragment(fingerprint="f", block=0, items=items, seconds=0, records=records)
+    )
+    m = Manifest(stage="align", sequence="00", fingerprint="f", status="done", code_version="1",
+                 config={}, upstream={}, inputs="", run_id="r", n_items=n_items, blocks=[items])  # fmt: skip
+    rows = [{"index": i, "frame_id": f"{i:06d}", "n_points": 6} for i in items]
+    m.tables["frames"] = store.write_table("00", FRAMES, rows)
+    store.write_manifest(m)
+    return StageContract("align", "volume", VOLUME.arrays, (FRAMES,)), m
+
+
+def test_missing_truncated_and_changed_chunks_are_named_never_zeros(tmp_path):
+    store = RunStore(tmp_path)
+    contract, m = _finished_stage(store)
+    assert store.check_stage("00", contract, m, full=True) == []  # the all-zero item is not damage
+    assert np.array_equal(store.arrays("00", VOLUME).read_item(3)["points"], np.zeros((6, 4)))
+    base = tmp_path / "sequences/00/align/arrays.zarr"
+    assert not (base / "points/c/3/0/0").exists()
+
+    (base / "points/c/1/0/0").unlink()
+    with pytest.raises(
+        DamagedStoreError, match=r"points/c/1/0/0: chunk of item 1 is missing.*rerun `dsnet label`"
+    ):
+        store.arrays("00", VOLUME).read_item(1)
+    chunk = base / "source_index/c/2/0"
+    chunk.write_bytes(chunk.read_bytes()[:-3])
+    with pytest.raises(DamagedStoreError, match=r"source_index/c/2/0: chunk of item 2 cannot be decoded"):
+        store.arrays("00", VOLUME).read_item(2)
+    # same size, other content: the size check passes, the digest does not
+    (base / "points/c/0/0/0").write_bytes((base / "points/c/2/0/0").read_bytes())
+    with pytest.raises(DamagedStoreError, match="does not match the checksum"):
+        store.arrays("00", VOLUME).read_item(0)
+    (base / "done/c/3").unlink()
+    with pytest.raises(DamagedStoreError, match=r"done/c/3: done flag of item 3 is missing"):
+        store.arrays("00", VOLUME).check_not_done(3)
+
+    cheap = store.check_stage("00", contract, m)
+    assert [(d.item, d.where.split("arrays.zarr/")[1]) for d in cheap] == [
+        (1, "points/c/1/0/0"), (2, "source_index/c/2/0"), (3, "done/c/3")
+    ]  # fmt: skip
+    assert [d.item for d in store.check_stage("00", contract, m, full=True)] == [0, 1, 2, 3]
+
+
+def test_truncated_table_partition_is_a_typed_error(tmp_path):
+    store = RunStore(tmp_path)
+    contract, m = _finished_stage(store)
+    part = tmp_path / "tables/frames/sequence=00/part-0.parquet"
+    part.write_bytes(part.read_bytes()[:-50])
+    with pytest.raises(DamagedStoreError, match=r"part-0.parquet: parquet file cannot be read"):
+        store.read_table("00", FRAMES)
+    with pytest.raises(DamagedStoreError, match="table 'frames' cannot be read"):
+        store.read_all(FRAMES)
+    (damage,) = store.check_stage("00", contract, m)
+    assert (
+        damage.table == "frames"
+        and damage.where == str(part)
+        and "bytes when written" not in damage.problem[:5]
+    )
+    m.tables = {}  # a manifest from before table records: the footer is checked
+    (damage,) = store.check_stage("00", contract, m)
+    assert damage.table == "frames" and "cannot be read" in damage.problem
+
+
+def test_stores_without_records_still_read_and_name_undecodable_chunks(tmp_path):
+    store = RunStore(tmp_path)
+    arrays = store.create_arrays("00", VOLUME, n_items=2, max_points=4, omit=("probs", "labels"))
+    vals = {"points": np.ones((4, 4)), "source_frame": np.zeros(4), "source_index": np.arange(4)}
+    for i in range(2):  # as before records: no item record with chunks
+        arrays.write_item(i, vals, 4)
+    assert np.array_equal(store.arrays("00", VOLUME).read_item(0)["points"], np.ones((4, 4)))
+    chunk = tmp_path / "sequences/00/align/arrays.zarr/points/c/1/0/0"
+    chunk.write_bytes(chunk.read_bytes()[:5])
+    with pytest.raises(DamagedStoreError, match=r"points/c/1/0/0: .*`dsnet label --from-stage align`"):
+        store.arrays("00", VOLUME).read_item(1)
+
+
+def test_block_outputs_are_checked_against_their_records(tmp_path):
+    store = RunStore(tmp_path)
+    contract, m = _finished_stage(store)
+    store.write_block_bytes("00", "align", "acc-000000.npz", b"accumulators" * 10)
+    assert store.read_block_bytes("00", "align", "acc-000000.npz") == b"accumulators" * 10
+    assert store.check_stage("00", contract, m) == []
+    out = tmp_path / "sequences/00/align/blocks/acc-000000.npz"
+    out.write_bytes(b"accum")
+    with pytest.raises(DamagedStoreError, match=r"acc-000000.npz: block output \(5 bytes\) does not match"):
+        store.read_block_bytes("00", "align", "acc-000000.npz")
+    (damage,) = store.check_stage("00", contract, m)
+    assert damage.whole and damage.where == str(out) and "has 5 bytes, 120 when written" in damage.problem
+    out.unlink()
+    with pytest.raises(DamagedStoreError, match="block output is missing"):
+        store.read_block_bytes("00", "align", "acc-000000.npz")

@@ -43,7 +43,7 @@ def _transient(task, task_run, state) -> bool:
     cache_policy=NO_CACHE,
     persist_result=False,
     retries=2,
-    retry_delay_seconds=1,
+    retry_delay_seconds=[1, 8],  # backoff: a throttled bucket gets time to recover
     retry_condition_fn=_transient,
 )
 def block_task(job: BlockJob) -> dict[str, Any]:

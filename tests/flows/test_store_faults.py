@@ -125,3 +125,21 @@ def test_a_real_full_then_read_only_store_resumes_to_the_same_labels(
     assert res.returncode == 0, res.stderr[-2000:]
     assert _labels(run, tmp_path / "out") == reference
     assert np.all([len(b) > 0 for b in reference])
+
+
+@pytest.mark.slow
+def test_transient_s3_errors_are_retried_to_the_same_labels(
+    cli_env, s3_endpoint, log, ckpt, reference, tmp_path
+):
+    from tests.helpers.flaky_s3 import FlakyS3Proxy
+
+    run = f"s3://dsnet-test/flaky-{uuid.uuid4().hex[:8]}"
+    with FlakyS3Proxy(s3_endpoint["AWS_ENDPOINT_URL"], rate=0.15, max_faults=40, seed=1) as proxy:
+        env = {**cli_env, **s3_endpoint, "AWS_ENDPOINT_URL": proxy.url}
+        res = subprocess.run(
+            cli(*_args(log, run, ckpt)), cwd=REPO, env=env, capture_output=True, text=True, timeout=600
+        )
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert proxy.faults >= 10, (proxy.faults, proxy.requests)  # 503 SlowDown answers were met and retried
+    assert "Traceback" not in res.stderr
+    assert _labels(run, tmp_path / "out") == reference

@@ -143,3 +143,31 @@ def test_transient_s3_errors_are_retried_to_the_same_labels(
     assert proxy.faults >= 10, (proxy.faults, proxy.requests)  # 503 SlowDown answers were met and retried
     assert "Traceback" not in res.stderr
     assert _labels(run, tmp_path / "out") == reference
+
+
+def test_two_runs_with_different_configs_on_one_store_end_consistent(cli_env, log, ckpt, reference, tmp_path):
+    """Two ``dsnet label`` processes on one run folder, k = 1 and k = 2: the locks serialise them,
+    and the store ends holding exactly the labels of the run that recorded itself last."""
+    k2 = tmp_path / "k2"
+    res = CliRunner().invoke(app, [*_args(log, k2 / "run", ckpt), "--scans", "2"])
+    assert res.exit_code == 0, res.output
+    want = {1: reference, 2: _labels(k2 / "run", k2 / "out")}
+    assert want[1] != want[2]
+    run = tmp_path / "run"
+    procs = [
+        subprocess.Popen(
+            cli(*_args(log, run, ckpt), "--scans", str(k), "--lock-wait", "300"),
+            cwd=REPO,
+            env=cli_env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for k in (1, 2)
+    ]
+    outs = [p.communicate(timeout=600)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    from storage.run import RunStore
+
+    last = RunStore(run).read_run_config()["stages"]["align"]["scans"]
+    assert _labels(run, tmp_path / "out") == want[last]

@@ -81,7 +81,10 @@ def test_a_worker_killed_in_the_model_stages_costs_time_not_labels(
         while not started() and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
         assert proc.poll() is None, "the run ended before the model stages: nothing to kill in"
-        victim = next(iter(dask_cluster.workers))
+        victim = None
+        while victim is None and proc.poll() is None and time.monotonic() < deadline:
+            victim = dask_cluster.busy_worker()  # one that holds a block in flight: its work is lost
+        assert victim is not None, "no worker was running a block"
         dask_cluster.kill_worker(victim)
         out, _ = proc.communicate(timeout=900)
     finally:

@@ -65,6 +65,16 @@ class DaskCluster:
             if proc.poll() is not None:
                 self.add_worker(name)
 
+    def busy_worker(self) -> str | None:
+        """The name of a worker that is running a task now (None when none is)."""
+        from distributed import Client
+
+        with Client(self.address, timeout=10) as client:
+            processing = client.processing()
+            names = {addr: w["name"] for addr, w in client.scheduler_info(n_workers=-1)["workers"].items()}
+        busy = sorted(names[a] for a, tasks in processing.items() if tasks and a in names)
+        return str(busy[0]) if busy else None
+
     def n_workers(self) -> int:
         """Workers the scheduler knows now (asked through a short-lived client)."""
         from distributed import Client

@@ -167,6 +167,9 @@ def stage_settings(
     clusterer: str | None = None,
     estimate_poses: bool = False,
     max_points: int | None = None,
+    device: str | None = None,
+    tta: int = 1,
+    tta_flip: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """The per-stage configs of the command-line settings.
 
@@ -177,6 +180,8 @@ def stage_settings(
         clusterer: a clusterer kind (``dbscan``) or a JSON clusterer config.
         estimate_poses: estimate poses for sequences without them.
         max_points: ingest's per-frame point limit (None: its default).
+        device: the model's torch device for infer (None: cpu).
+        tta: yaw rotations averaged by infer (1: none); ``tta_flip`` adds their mirror images.
 
     Raises:
         ValueError: ``clusterer`` is neither a kind nor valid JSON.
@@ -187,8 +192,15 @@ def stage_settings(
         ingest["max_points"] = max_points
     if ingest:
         stages["ingest"] = ingest
+    infer: dict[str, Any] = {}
     if checkpoint:
-        stages["infer"] = {"checkpoint": str(Path(checkpoint).expanduser().resolve())}
+        infer["checkpoint"] = str(Path(checkpoint).expanduser().resolve())
+    if device:
+        infer["device"] = device
+    if tta != 1 or tta_flip:
+        infer.update(tta=tta, tta_flip=tta_flip)
+    if infer:
+        stages["infer"] = infer
     if clusterer:
         try:
             cfg = json.loads(clusterer) if clusterer.lstrip().startswith("{") else {"kind": clusterer}

@@ -37,11 +37,34 @@ class InferConfig(StageConfig):
         checkpoint: checkpoint folder; None = the bundled demo model.
         device: torch device (``"cpu"``, ``"cuda"``, ``"cuda:1"``).
         batch: volumes per forward pass.
+        tta: test-time augmentation: semantic logits averaged over this many yaw rotations (offsets
+            rotated back first; :mod:`dsnet_core.model.tta`); 1 = the plain forward.
+        tta_flip: also average each rotation's mirror image (2 × ``tta`` passes).
     """
 
     checkpoint: str | None = None
     device: str = "cpu"
     batch: int = Field(1, ge=1, le=64)
+    tta: int = Field(1, ge=1, le=64)
+    tta_flip: bool = False
+
+
+def _check_device(device: str) -> None:
+    """Refuse a device this machine lacks, before any block runs.
+
+    Raises:
+        ConfigError: not a torch device, or a CUDA device without CUDA.
+    """
+    import torch
+
+    from dsnet_core.errors import ConfigError
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError) as exc:
+        raise ConfigError(f"--device {device!r} is not a torch device ({exc})") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"--device {device}: this machine has no CUDA device (torch {torch.__version__})")
 
 
 def quantise_probs(probs: np.ndarray) -> np.ndarray:
@@ -91,6 +114,7 @@ class InferStage(Stage):
     def plan(self, ctx: StageContext) -> Plan:
         from dsnet_core.model.checkpoint import read_card
 
+        _check_device(ctx.config.device)
         align = ctx.manifest("align")
         path = self.checkpoint(ctx).resolve()
         card = read_card(path)
@@ -109,10 +133,14 @@ class InferStage(Stage):
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         from dsnet_core.labels import label_map_from_class_map
         from dsnet_core.model.inference import Predictor
+        from dsnet_core.model.tta import TTAConfig
 
         label_map = label_map_from_class_map(ctx.plan[CLASS_MAP])
         predictor = Predictor.from_checkpoint(
-            ctx.plan["checkpoint"], device=ctx.config.device, expect_label_map=label_map
+            ctx.plan["checkpoint"],
+            device=ctx.config.device,
+            expect_label_map=label_map,
+            tta=TTAConfig(rotations=ctx.config.tta, flip=ctx.config.tta_flip),
         )
         align = ctx.arrays("align")
         thing = label_map.is_thing()

@@ -55,6 +55,13 @@ def label(
         0.0, min=0.0, help="Seconds to wait for another run's lock before failing."
     ),
     debug: bool = typer.Option(False, "--debug", help="Show Prefect's tracebacks of failing tasks."),
+    device: str = typer.Option(
+        None, "--device", help="The model's torch device: cpu (default), cuda, cuda:1."
+    ),
+    tta: int = typer.Option(
+        1, "--tta", min=1, max=64, help="Test-time augmentation: average over N yaw rotations (1: off)."
+    ),
+    tta_flip: bool = typer.Option(False, "--tta-flip", help="With --tta: also average the mirror images."),
 ) -> None:
     """Label a log into a run store (ingest → align → infer → shift → fuse → stitch → score), resuming
     whatever is already done there."""
@@ -72,7 +79,9 @@ def label(
             format=format,
             reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
             method=method,
-            stages=stage_settings(scans, stride, checkpoint, clusterer, estimate_poses, max_points),
+            stages=stage_settings(
+                scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip
+            ),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
             from_stage=from_stage,
             until=until,

@@ -18,3 +18,16 @@ def test_label_refuses_non_positive_sizes(tmp_path, option, value):
     assert res.exit_code == 2
     assert option in res.output and "greater than or equal to 1" in res.output
     assert not (tmp_path / "run").exists()
+
+
+def test_model_options_reach_the_infer_stage_config():
+    from flows.request import stage_settings
+
+    assert "infer" not in stage_settings(1)  # the plain path records nothing
+    assert stage_settings(1, tta=4, tta_flip=True, device="cuda")["infer"] == {
+        "device": "cuda",
+        "tta": 4,
+        "tta_flip": True,
+    }
+    res = CliRunner().invoke(app, ["label", "x", "--run", "y", "--tta", "0"], env={"COLUMNS": "250"})
+    assert res.exit_code == 2 and "--tta" in res.output

@@ -151,6 +151,41 @@ def test_clusterer_change_and_new_checkpoint_reprocess_only_downstream(labelled,
     assert P["infer"].inputs(noshift) != P["infer"].inputs(make_context(store, P, "00", "infer", run))
 
 
+def test_tta_in_the_infer_stage_equals_the_predictors_and_reprocesses_infer_onward(labelled, tmp_path):
+    import shutil
+
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.model.tta import TTAConfig
+    from tasks.runner import stage_fingerprint
+
+    shared, run, ckpt, m = labelled
+    shutil.copytree(shared.root.path(""), tmp_path / "run")
+    store = RunStore(tmp_path / "run")  # a copy: infer is recomputed here
+    plain = {**run, "stages": {**run["stages"], "infer": {**run["stages"]["infer"], "tta": 1}}}
+    assert (
+        stage_fingerprint(store, P, "00", "infer", plain) == m["infer"].fingerprint
+    )  # N = 1: the plain path
+    tta = {
+        **run,
+        "stages": {**run["stages"], "infer": {**run["stages"]["infer"], "tta": 4, "tta_flip": True}},
+    }
+    store.write_run_config("r-tta", tta)
+    assert prepare_stage(store, P, "00", "align", tta, "r-tta").action == "skip"
+    assert prepare_stage(store, P, "00", "infer", tta, "r-tta").action == "fresh"
+    got = run_stage_plain(store, P, "00", "infer", tta, "r-tta")
+    pts = store.arrays("00", P["align"].contract).read_item(1)["points"]
+    want = Predictor.from_checkpoint(ckpt, tta=TTAConfig(rotations=4, flip=True)).predict(pts)
+    item = store.arrays("00", P["infer"].contract).read_item(1)
+    assert got.status == "done" and np.array_equal(item["sem"], want.sem)
+    assert np.allclose(item["offsets"], want.offsets, atol=1e-6)
+    cuda = {**run, "stages": {**run["stages"], "infer": {**run["stages"]["infer"], "device": "cuda:7"}}}
+    import torch
+
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="no CUDA device"):
+            prepare_stage(store, P, "00", "infer", cuda, "r-cuda")
+
+
 KILL_AT_THIRD_VOLUME = (
     KILL_STITCH_AT_THIRD_VOLUME
     + """

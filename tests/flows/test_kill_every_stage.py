@@ -102,7 +102,7 @@ def _plan(windows: dict[tuple[str, str], float]) -> list[KillPoint]:
 
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
-def test_sigkill_at_20_moments_over_every_stage_resumes_identically(cli_env, tmp_path):
+def test_20_kills_over_every_stage_resume_identically(cli_env, tmp_path):
     env = {**cli_env, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     log = tmp_path / "log"
     for i, seq in enumerate(SEQS):

@@ -284,7 +284,13 @@ class Trainer:
         """Train the shifting MLPs (everything else frozen); weights go to ``CKPT/shift.safetensors``."""
         for p in self.model.parameters():
             p.requires_grad_(False)
-        module = make_shift_module(self.cfg.scans, self.model.config.ins_dim)
+        # initial weights from the run's seed, not from whatever this process drew before: a run
+        # resumed at this stage has not trained the earlier ones and would start (and end) elsewhere
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(
+                int(np.random.default_rng([self.cfg.seed, STAGES.index("shift")]).integers(2**31))
+            )
+            module = make_shift_module(self.cfg.scans, self.model.config.ins_dim)
         saved = load_shift_weights(self.out) if done else None
         if saved is not None:
             module.load_state_dict(saved)

@@ -77,15 +77,17 @@ def run_and_kill(
     cwd: str | None = None,
     timeout: float = 600,
     poll_s: float = 0.02,
+    when: Callable[[], bool] | None = None,
 ) -> KillResult:
     """Start ``cmd``, signal it at ``point`` (``root`` is the run store watched for a stage trigger),
-    and wait for it to end.
+    and wait for it to end. ``when`` is a trigger of the caller's own (e.g. a training checkpoint's
+    epoch count), used instead of a stage trigger; ``point.delay_s`` counts from it.
 
     Returns:
         The result; ``killed`` is False when the process ended before the trigger.
     """
-    cond = None
-    if point.stage is not None:
+    cond = when
+    if cond is None and point.stage is not None:
         if root is None:
             raise ValueError("a stage trigger needs the run store root")
         cond = stage_started(root, point.sequence, point.stage, point.blocks)
@@ -117,3 +119,36 @@ def run_and_kill(
             proc.wait(timeout=30)
         reader.join(timeout=30)
     return KillResult(killed, proc.returncode, "".join(chunks), exit_after)
+
+
+def where_stopped(root: str, sequences: list[str] | tuple[str, ...], stages: list[str] | tuple[str, ...]):
+    """Where a stopped run stood, read from its run store: ``(stage, detail)``.
+
+    ``stage`` is the first stage (in ``stages`` order) that some sequence has started but not
+    finished, ``"before <stage>"`` when the previous stages are done and this one has no manifest
+    yet, ``"startup"`` when no stage has started, and ``"publish"`` when every stage is done (the
+    run was reporting). ``detail`` lists, per sequence, that stage's status and complete blocks.
+    """
+    from storage.run import RunStore
+
+    store = RunStore(root)
+    started_any = False
+    for stage in stages:
+        states = {}
+        for seq in sequences:
+            m = store.read_manifest(seq, stage)
+            if m is None:
+                states[seq] = "-"
+            elif m.status == "done":
+                states[seq] = "done"
+            else:
+                n = len(store.completed_blocks(seq, stage, m.fingerprint))
+                states[seq] = f"{m.status} {n}/{len(m.blocks)}"
+        if all(s == "done" for s in states.values()):
+            started_any = True
+            continue
+        detail = ", ".join(f"{seq}: {s}" for seq, s in states.items())
+        if all(s == "-" for s in states.values()):
+            return (f"before {stage}" if started_any else "startup"), detail
+        return stage, detail
+    return "publish", ""

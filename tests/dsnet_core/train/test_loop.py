@@ -76,6 +76,21 @@ def test_all_stages_write_shift_weights(log, tmp_path):
     assert rows[0].split(",")[-2] == "val_shift_l1" and len(rows) == 4
 
 
+def test_a_run_resumed_at_the_shift_stage_trains_the_same_shifting_weights(log, tmp_path):
+    """The shifting MLPs' initial weights come from the run's seed, not from whatever the process
+    drew before: a run resumed at the shift stage (a fresh process that did not train the earlier
+    stages) ends with the uninterrupted run's weights, bit for bit."""
+    epochs = {"semantic": 1, "offset": 1, "shift": 1}
+    trainer(log, tmp_path / "a", stage="all", epochs=epochs).run()
+    trainer(log, tmp_path / "b", stage="all", epochs={**epochs, "shift": 0}).run()
+    torch.manual_seed(12345)  # another process: the global generator is wherever it is
+    trainer(log, tmp_path / "b", resume=True, stage="all", epochs=epochs).run()
+    a, b = load_shift_weights(tmp_path / "a"), load_shift_weights(tmp_path / "b")
+    assert a is not None and b is not None and a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+
+
 def test_unknown_stage(log, tmp_path):
     with pytest.raises(ConfigError, match="unknown training stage 'bogus'"):
         trainer(log, tmp_path, stage="bogus")

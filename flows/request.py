@@ -67,8 +67,16 @@ class LabelRequest(BaseModel):
         return value
 
     def pipeline(self) -> Pipeline:
-        """The method's stages. Raises ValueError for an unknown method or stage name."""
-        pipeline = get_pipeline(self.method, **self.method_options)
+        """The method's stages. Raises ValueError for an unknown method or stage name.
+
+        DS-Net's temporal association, unless ``method_options`` names it: tracking at k = 1 (volumes
+        share no frame, so stitching could only hand out fresh ids), stitching for k > 1.
+        """
+        options = dict(self.method_options)
+        if self.method == "dsnet" and options.get("temporal", "auto") == "auto":
+            scans = int(self.stages.get("align", {}).get("scans", 1))
+            options["temporal"] = "track" if scans == 1 else "stitch"
+        pipeline = get_pipeline(self.method, **options)
         for name in (self.from_stage, self.until, *self.stages):
             pipeline.check_stage(name)
         return pipeline

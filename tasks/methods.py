@@ -18,20 +18,32 @@ from tasks.pipeline import Pipeline
 from tasks.score import ScoreStage
 from tasks.shift import ShiftStage
 from tasks.stitch import StitchStage
+from tasks.track import TrackStage
+
+TEMPORAL = {"stitch": StitchStage, "track": TrackStage}
+"""How instance ids become sequence-wide: stitching overlapping volumes, or tracking instances."""
 
 
-def dsnet() -> Pipeline:
-    """DS-Net / 4D-DS-Net: offsets → dynamic shifting → fusion → stitching across volumes."""
+def dsnet(temporal: str = "stitch") -> Pipeline:
+    """DS-Net / 4D-DS-Net: offsets → dynamic shifting → fusion → ``temporal``: stitching across
+    volumes (4D-DS-Net, k > 1) or tracking each frame's instances (k = 1 + tracking).
+
+    Raises:
+        ValueError: an unknown ``temporal``.
+    """
+    if temporal not in TEMPORAL:
+        raise ValueError(f"unknown temporal association {temporal!r}; choose one of {sorted(TEMPORAL)}")
     stages = (
         IngestStage(),
         AlignStage(),
         InferStage(),
         ShiftStage(),
         FuseStage(),
-        StitchStage(),
-        ScoreStage(labels="stitch"),
+        TEMPORAL[temporal](),
+        ScoreStage(labels=temporal),
     )
-    return Pipeline("dsnet", stages, labels="stitch")
+    options = () if temporal == "stitch" else (("temporal", temporal),)
+    return Pipeline("dsnet", stages, labels=temporal, options=options)
 
 
 METHODS: dict[str, Callable[..., Pipeline]] = {"dsnet": dsnet}

@@ -55,6 +55,12 @@ def label(
         0.0, min=0.0, help="Seconds to wait for another run's lock before failing."
     ),
     debug: bool = typer.Option(False, "--debug", help="Show Prefect's tracebacks of failing tasks."),
+    temporal: str = typer.Option(
+        "auto",
+        "--temporal",
+        help="Sequence-wide ids: stitch (overlapping volumes, k > 1), track (each frame's instances "
+        "tracked by centre) or auto (track at --scans 1, else stitch).",
+    ),
     device: str = typer.Option(
         None, "--device", help="The model's torch device: cpu (default), cuda, cuda:1."
     ),
@@ -79,6 +85,7 @@ def label(
             format=format,
             reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
             method=method,
+            method_options={} if temporal == "auto" else {"temporal": temporal},
             stages=stage_settings(
                 scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip
             ),

@@ -17,7 +17,7 @@ import numpy as np
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
 
-NEEDED = ("align", "infer", "fuse", "stitch")
+NEEDED = ("align", "infer", "fuse")  # and the labels stage; stitch's link IoUs where it is that stage
 
 
 def frame_confidence_rows(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> list[dict[str, Any]]:
@@ -26,7 +26,7 @@ def frame_confidence_rows(store: RunStore, pipeline: Pipeline, sequences: list[s
         return []
     rows = []
     for seq in sequences:
-        manifests = [store.read_manifest(seq, s) for s in NEEDED]
+        manifests = [store.read_manifest(seq, s) for s in (*NEEDED, pipeline.labels)]
         if any(m is None or m.status != "done" for m in manifests):
             continue
         rows += _sequence_rows(store, pipeline, seq)
@@ -44,11 +44,12 @@ def _sequence_rows(store: RunStore, pipeline: Pipeline, seq: str) -> list[dict[s
     agreement = {
         (v, i): a for v, i, a in zip(inst_t["index"], inst_t["id"], inst_t["agreement"], strict=True)
     }
-    tracks = store.read_table(seq, pipeline["stitch"].table("tracks")).to_pydict()
-    links: dict[int, list[float]] = {}
-    for fr, iou in zip(tracks["frames"], tracks["min_link_iou"], strict=True):
-        for f in fr:
-            links.setdefault(int(f), []).append(math.nan if iou is None else float(iou))
+    links: dict[int, list[float]] = {}  # a tracked run has no link IoUs: that term is 1
+    if "stitch" in pipeline:
+        tracks = store.read_table(seq, pipeline["stitch"].table("tracks")).to_pydict()
+        for fr, iou in zip(tracks["frames"], tracks["min_link_iou"], strict=True):
+            for f in fr:
+                links.setdefault(int(f), []).append(math.nan if iou is None else float(iou))
     align = store.arrays(seq, pipeline["align"].contract)
     infer = store.arrays(seq, pipeline["infer"].contract)
     fuse = store.arrays(seq, pipeline["fuse"].contract)

@@ -116,7 +116,8 @@ def test_label_3d_ids_from_one_counter_export_and_eval(prefect_api_url, synth_lo
     from flows.label import label_dataset
 
     root = str(tmp_path / "run")
-    summary = label_dataset(req(str(synth_log), root, None, stages(ckpt, 1), {"block_size": 4}))
+    stitched = {"method_options": {"temporal": "stitch"}}  # k = 1 tracks by default; stitching here
+    summary = label_dataset(req(str(synth_log), root, None, stages(ckpt, 1), {"block_size": 4}, **stitched))
     assert actions(summary) == {(s, st): "fresh" for s in SEQS for st in ALL}
     store = RunStore(root)
     for s in SEQS:

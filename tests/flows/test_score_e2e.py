@@ -38,10 +38,14 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
         ("01", "fresh"),
     }
     store = RunStore(root)
+    from tasks.methods import run_pipeline
+
+    used = run_pipeline(store.read_run_config())  # k = 1: tracked ids (``track``)
+    assert used.labels == "track"
     reader = SemanticKittiReader(synth_log)
     ref = PanopticEvaluator(load_label_map("semantic-kitti"))
     for seq in ("00", "01"):
-        arrays = store.arrays(seq, P["stitch"].contract)
+        arrays = store.arrays(seq, used["track"].contract)
         for i, frame in enumerate(reader.frames(seq)):
             ref.add(reader.labels(frame), arrays.read_item(i)["label"], frame.frame_id, seq)
     want = ref.result()
@@ -51,9 +55,9 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
         assert (run[key] is None and math.isnan(v)) or run[key] == v, key
     assert run["frames"] == 12 and run["model_card"].startswith("tiny@")
     stages_timed = {t["stage"] for t in read_report_table(store, "stage_timings").to_pylist()}
-    assert stages_timed == {"ingest", "align", "infer", "shift", "fuse", "stitch", "score"}
+    assert stages_timed == {"ingest", "align", "infer", "shift", "fuse", "track", "score"}
     review = read_report_table(store, "review_queue").to_pylist()
-    assert review and review[0]["source"] in ("fuse/instances", "stitch/tracks")
+    assert review and review[0]["source"] in ("fuse/instances", "track/tracked")
     assert [r["confidence"] for r in review] == sorted(r["confidence"] for r in review)
     assert (root / "dashboard.html").stat().st_size > 10_000
     md = Artifact.get(f"score-summary-{synth_log.name.replace('_', '-')}")

@@ -1,0 +1,212 @@
+"""Stage ``track``: sequence-wide instance ids by tracking each frame's instances over time.
+
+The alternative to ``stitch`` (``dsnet label --temporal track``; the default at k = 1, where
+volumes share no frame and stitching can only hand out fresh ids). Frames are visited in order;
+each frame's instances come from the first volume that contains it (``stitch``'s ownership rule),
+restricted to that frame's points. Their centroids, taken into the world frame with the volume's
+reference pose, go through :class:`dsnet_core.temporal.tracking.Tracker`: greedy association to
+the live tracks displaced by their constant velocity, gated by distance and by the label map's
+track groups, a birth for every unmatched instance and a maximum age for unseen tracks; ids from
+one counter per sequence.
+
+Output as ``stitch``: per frame ``label`` uint32 in the scan's ORIGINAL point order (raw semantic |
+id << 16 in the model's label map); quarantined frames get none. Table ``tracked``: one row per id.
+
+Tracking is sequential: a sequence is one block, resumable inside it. After each frame is
+written the tracker's state is saved as the stage's state (tagged with the fingerprint and the
+frame's position), so a killed run continues after the last saved frame to identical labels.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+
+import numpy as np
+import pyarrow as pa
+from pydantic import Field
+
+from storage.contract import TableSpec
+from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
+
+log = logging.getLogger(__name__)
+
+
+class TrackConfig(StageConfig):
+    """Association settings (:class:`dsnet_core.temporal.tracking.Tracker`).
+
+    Attributes:
+        max_distance: association gate between a track's predicted and an instance's centroid, m.
+        max_age: frames a track may go unseen and still be matched.
+        constant_velocity: predict a track's position with its last velocity.
+    """
+
+    max_distance: float = Field(2.0, gt=0)
+    max_age: int = Field(2, ge=0)
+    constant_velocity: bool = True
+
+
+TRACKED = TableSpec(
+    "tracked",
+    pa.schema(
+        [
+            ("id", pa.int32()),  # sequence-wide instance id (upper 16 bits of the label)
+            ("class_id", pa.int32()),  # train id of the track's first sighting
+            ("raw_class", pa.int32()),  # the same through learning_map_inv
+            ("first_frame", pa.int32()),  # frame indices (the ingest frame table's ``index``)
+            ("last_frame", pa.int32()),
+            ("n_points", pa.int64()),
+            ("n_frames", pa.int32()),
+            ("frames", pa.list_(pa.int32())),  # frames the track has points in
+            ("frame_points", pa.list_(pa.int64())),  # its points in each of those frames
+        ]
+    ),
+    roles=(("id", "id"), ("class_id", "class_id"), ("points", "n_points"), ("item", "first_frame")),
+)
+
+
+class TrackStage(Stage):
+    name = "track"
+    upstream = ("fuse", "align")
+    version = "1"
+    Config = TrackConfig
+    item = "frame"
+    arrays = (FRAME_LABEL,)
+    tables = (TRACKED,)
+
+    def plan(self, ctx: StageContext) -> Plan:
+        t = ctx.frames.to_pydict()
+        align = ctx.manifest("align")
+        ok = [i for i, s in zip(t["index"], t["status"], strict=True) if s == "ok"]
+        sizes = dict(zip(t["index"], t["n_points"], strict=True))
+        return Plan(
+            n_items=len(t["index"]),
+            max_points=max((int(sizes[i]) for i in ok), default=0),
+            meta={"windows": align.plan["windows"], "frame_points": [int(sizes[i]) for i in t["index"]]},
+            blocks=[list(range(len(t["index"])))],
+        )
+
+    def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
+        from dsnet_core.temporal.tracking import Tracker, instance_centroids, relabel
+
+        todo = set(items)
+        if not todo:
+            return
+        label_map = ctx.label_map
+        thing_of = label_map.is_thing()
+        windows = [list(w) for w in ctx.plan["windows"]]
+        owner: dict[int, int] = {}
+        for v, w in enumerate(windows):
+            for f in w:
+                owner.setdefault(int(f), v)
+        order = sorted(owner)
+        frames = ctx.frames.to_pydict()
+        pose = dict(zip(frames["index"], frames["pose"], strict=True))
+        stamp = dict(zip(frames["index"], frames["timestamp"], strict=True))
+        refs = _ref_frames(ctx)
+        frame_points = ctx.plan["frame_points"]
+        fingerprint = ctx.manifest(self.name).fingerprint
+        tracker, start, summary = self._resume(ctx, fingerprint, order, label_map)
+        if tracker is None:
+            tracker = Tracker(label_map, **ctx.config.model_dump())
+        else:
+            log.info("track %s resumes after frame %d from its saved state", ctx.sequence, order[start - 1])
+        align, fuse = ctx.arrays("align"), ctx.arrays("fuse")
+        cached: tuple[int, dict, dict] | None = None
+        for k in range(start, len(order)):
+            f = order[k]
+            v = owner[f]
+            if cached is None or cached[0] != v:
+                cached = (
+                    v,
+                    align.read_item(v, ["points", "source_frame", "source_index"]),
+                    fuse.read_item(v),
+                )
+            _, vol, fused = cached
+            sel = vol["source_frame"] == f
+            xyz = vol["points"][sel, :3]
+            sem = fused["sem"][sel].astype(np.int64)
+            inst = fused["inst"][sel].astype(np.int64)
+            thing = thing_of[sem]
+            ids, cent, cls = instance_centroids(xyz, sem, inst, thing)
+            ref = refs[v]
+            world = None if pose.get(ref) is None else np.asarray(pose[ref], np.float64).reshape(4, 4)
+            time = stamp.get(f)
+            tid = tracker.add_detections(cent, cls, world, time if time is not None else float(f))
+            label = np.zeros(int(frame_points[f]), np.uint32)
+            label[vol["source_index"][sel]] = relabel(label_map, sem, inst, ids, tid, thing)
+            _summarise(summary, f, label, tid, cls)
+            if f in todo:
+                rows = {"tracked": _track_rows(summary, label_map)} if k == len(order) - 1 else {}
+                n = int(label.shape[0])
+                yield ItemResult(
+                    f,
+                    arrays={"label": label},
+                    n_points=n,
+                    rows=rows,
+                    counts={"frames": 1, "points": n, "tracks": len(rows.get("tracked", []))},
+                )
+            ctx.store.write_stage_state(
+                ctx.sequence,
+                self.name,
+                {
+                    "fingerprint": fingerprint,
+                    "position": k,
+                    "state": tracker.state_dict(),
+                    "summary": summary,
+                },
+            )
+        ctx.store.write_stage_state(ctx.sequence, self.name, None)
+
+    def _resume(self, ctx: StageContext, fingerprint: str, order: list[int], label_map):
+        """(tracker, first position to compute, summary) from a valid saved state, else a fresh start."""
+        from dsnet_core.temporal.tracking import Tracker
+
+        saved = ctx.store.read_stage_state(ctx.sequence, self.name)
+        done = ctx.arrays(self.name).done()
+        if saved is None or saved.get("fingerprint") != fingerprint:
+            return None, 0, {}
+        k = int(saved["position"])
+        if k >= len(order) - 1 or not done[order[: k + 1]].all():
+            return None, 0, {}
+        summary = {int(i): row for i, row in saved["summary"].items()}
+        return Tracker.from_state(saved["state"], label_map), k + 1, summary
+
+
+def _ref_frames(ctx: StageContext) -> dict[int, int]:
+    """Volume index → the frame whose sensor frame its points are in."""
+    t = ctx.table("align", "volumes").to_pydict()
+    return {int(i): int(r) for i, r in zip(t["index"], t["ref_frame"], strict=True)}
+
+
+def _summarise(summary: dict, frame: int, label: np.ndarray, tid: np.ndarray, cls: np.ndarray) -> None:
+    """Add one frame's tracked instances to ``summary`` (id → JSON-able row parts)."""
+    ids, counts = np.unique(label >> 16, return_counts=True)
+    points = {int(i): int(c) for i, c in zip(ids.tolist(), counts.tolist(), strict=True) if i}
+    for t, c in zip(tid.tolist(), cls.tolist(), strict=True):
+        if points.get(int(t), 0) == 0:
+            continue
+        row = summary.setdefault(int(t), {"class_id": int(c), "frames": [], "frame_points": []})
+        row["frames"].append(int(frame))
+        row["frame_points"].append(points[int(t)])
+
+
+def _track_rows(summary: dict, label_map) -> list[dict]:
+    """The ``tracked`` table's rows, one per id."""
+    rows = []
+    for tid in sorted(summary):
+        r = summary[tid]
+        rows.append(
+            {
+                "id": tid,
+                "class_id": r["class_id"],
+                "raw_class": int(label_map.to_raw(np.asarray([r["class_id"]]))[0]),
+                "first_frame": min(r["frames"]),
+                "last_frame": max(r["frames"]),
+                "n_points": int(sum(r["frame_points"])),
+                "n_frames": len(r["frames"]),
+                "frames": r["frames"],
+                "frame_points": r["frame_points"],
+            }
+        )
+    return rows

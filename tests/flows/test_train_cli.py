@@ -136,10 +136,10 @@ def test_kills_at_random_moments_resume_to_bit_identical_weights(tmp_path):
     plan, first = [], 0
     for stage, n in schedule.items():
         g = first + rng.randrange(n)  # the epoch (over all stages) the kill lands in
-        plan.append((stage, g, rng.uniform(0.1, 0.6)))
+        plan.append((stage, g, rng.uniform(0.1, 0.6), range(first, first + n)))
         first += n
     ckpt = tmp_path / "killed"
-    for attempt, (stage, g, frac) in enumerate(plan):
+    for attempt, (stage, g, frac, epochs) in enumerate(plan):
         cmd, env = cli(log, "--out", ckpt, *common, *(["--resume"] if attempt else []))
         # epoch 0's window starts with the process (imports and data loading included)
         delay = frac * (committed[g + 1] - committed[g])
@@ -152,7 +152,9 @@ def test_kills_at_random_moments_resume_to_bit_identical_weights(tmp_path):
         where = f"kill {attempt} planned in {stage} epoch {g + 1} of {total}, {delay:.1f} s in"
         assert res.killed, f"{where}: the run ended first\n{res.output[-2000:]}"
         assert res.returncode == -signal.SIGKILL, f"{where}: {res.output[-2000:]}"
-        assert committed_epochs(ckpt) == g, f"{where}: landed after {committed_epochs(ckpt)} epochs"
+        # on a loaded machine an epoch can end before the planned moment: still inside the stage
+        landed = committed_epochs(ckpt)
+        assert landed in epochs, f"{where}: landed after {landed} epochs, outside {stage}"
     cmd, env = cli(log, "--out", ckpt, *common, "--resume")
     resumed = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
     assert resumed.returncode == 0, resumed.stderr[-2000:]

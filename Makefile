@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml Makefile | cksum | cut -d' ' -f1)
 
-.PHONY: demo test test-slow bench lint format clean chromium
+.PHONY: demo test test-slow test-gpu bench lint format clean chromium
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -28,6 +28,10 @@ test: $(STAMP) chromium
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "slow"
+
+# the CUDA paths against the CPU ones; needs a CUDA build of torch and a GPU (skipped otherwise)
+test-gpu: $(STAMP)
+	$(PY) -m pytest -q -m "gpu"
 
 bench: $(STAMP)
 	for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done

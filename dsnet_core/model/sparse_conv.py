@@ -225,7 +225,15 @@ class _SparseConvFn(torch.autograd.Function):
 
 
 def sparse_conv(x: torch.Tensor, weight: torch.Tensor, book: Rulebook) -> torch.Tensor:
-    """Apply a rulebook: features ``(n_in, C_in)``, weight ``(K, C_in, C_out)`` → ``(n_out, C_out)``."""
+    """Apply a rulebook: features ``(n_in, C_in)``, weight ``(K, C_in, C_out)`` → ``(n_out, C_out)``.
+
+    Under autocast (mixed-precision training) the convolution itself stays float32: its reused
+    workspaces and GEMM paths are float32; the dense layers around it take the lower precision.
+    """
+    dev = x.device.type
+    if torch.is_autocast_enabled(dev):
+        with torch.autocast(dev, enabled=False):
+            return _SparseConvFn.apply(x.float(), weight.float(), book)
     return _SparseConvFn.apply(x, weight, book)
 
 

@@ -81,6 +81,9 @@ class TrainConfig:
             and U-Net frozen, their batch-norm statistics fixed); False trains everything.
         holdout: fraction of the training volumes held back for validation (seeded choice, at
             least one when there are two or more); 0 validates on the given validation data.
+        amp: mixed precision of the semantic and offset stages' forward passes: ``off``, ``bf16``
+            (CPU and CUDA) or ``fp16`` (CUDA, with a gradient scaler); weights and optimiser state
+            stay float32, and the card records the choice (``train_config.amp``).
         patience: early stop: end a stage after this many epochs without a better validation
             score (mIoU for the semantic stage, offset L1 for the instance head) and keep the best
             epoch's weights; 0 runs every epoch.
@@ -99,8 +102,11 @@ class TrainConfig:
     freeze_backbone: bool = False
     holdout: float = 0.0
     patience: int = 0
+    amp: str = "off"
 
     def __post_init__(self) -> None:
+        if self.amp not in AMP_DTYPES:
+            raise ConfigError(f"unknown --amp {self.amp!r}: choose one of {sorted(AMP_DTYPES)}")
         if self.schedule not in ("cosine", "constant"):
             raise ConfigError(f"unknown learning-rate schedule '{self.schedule}' (cosine or constant)")
         if not 0.0 <= self.holdout < 1.0:
@@ -126,6 +132,9 @@ class TrainConfig:
 
 
 StepCallback = Callable[[str, int, int, int, float], None]
+
+AMP_DTYPES = {"off": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+"""``TrainConfig.amp`` → the autocast dtype."""
 
 
 class Trainer:
@@ -356,6 +365,8 @@ class Trainer:
         steps = (len(order) + bs - 1) // bs
         self._set_modes(stage)
         losses = []
+        dtype = AMP_DTYPES[self.cfg.amp]
+        scaler = torch.amp.GradScaler(self.device.type, enabled=self.cfg.amp == "fp16")
         for step in range(steps):
             samples = [
                 load_sample(self.reader, self.train_vols[i], self.label_map)
@@ -363,10 +374,12 @@ class Trainer:
             ]
             if self.cfg.augment:
                 samples = [_with_points(s, augment(s.points, rng)) for s in samples]
-            loss = self._loss(stage, samples)
+            with torch.autocast(self.device.type, dtype=dtype or torch.float32, enabled=dtype is not None):
+                loss = self._loss(stage, samples)
             opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+            scaler.scale(loss.float()).backward()
+            scaler.step(opt)
+            scaler.update()
             losses.append(float(loss.detach()))
             if on_step is not None:
                 on_step(stage, epoch + 1, step + 1, steps, losses[-1])

@@ -61,6 +61,9 @@ def train(
     patience: int = typer.Option(
         0, help="Early stop: end a stage after N epochs without a better validation score, keep the best."
     ),
+    amp: str = typer.Option(
+        "off", "--amp", help="Mixed precision: off, bf16 (CPU or CUDA) or fp16 (CUDA, gradient scaler)."
+    ),
 ) -> None:
     """Train DS-Net (semantic → instance head → shifting) and write a checkpoint with a model card."""
     import logging
@@ -103,6 +106,7 @@ def train(
             freeze_backbone=freeze_backbone,
             holdout=holdout,
             patience=patience,
+            amp=amp,
         )
         model_config = get_preset(preset)
         if grid:

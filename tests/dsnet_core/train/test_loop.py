@@ -156,3 +156,18 @@ def test_more_backbone_epochs_invalidate_the_heads_trained_before(log, tmp_path)
     # nothing left to do: a further resume trains nothing
     again = trainer(log, tmp_path, resume=True, epochs={"semantic": 2, "offset": 1, "shift": 1}).run()
     assert len(again.metrics) == 6
+
+
+def test_bf16_mixed_precision_trains_in_float32_weights_and_is_recorded(tmp_path):
+
+    log = write_tiny_log(tmp_path / "log", frames=3)
+    kw = dict(stage="all", epochs={"semantic": 1, "offset": 1, "shift": 0})
+    plain = trainer(log, tmp_path / "fp32", **kw).run()
+    mixed = trainer(log, tmp_path / "bf16", amp="bf16", **kw).run()
+    assert mixed.training_data["train_config"]["amp"] == "bf16"
+    for a, b in zip(plain.metrics, mixed.metrics, strict=True):  # the same steps, bf16 rounding only
+        assert abs(a["train_loss"] - b["train_loss"]) < 0.05 * a["train_loss"], (a, b)
+    model, _ = load_checkpoint(tmp_path / "bf16")
+    assert all(p.dtype == torch.float32 for p in model.parameters())
+    with pytest.raises(ConfigError, match="--amp"):
+        TrainConfig(amp="fp8")

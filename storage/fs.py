@@ -72,7 +72,7 @@ class RootFS:
             return None
         try:
             return json.loads(data)
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:  # a flipped bit may leave bad UTF-8
             raise StoreError(self.url(rel), f"not valid JSON: {exc}") from exc
 
     def exists(self, rel: str) -> bool:

@@ -49,11 +49,11 @@ from storage.tables import (
     read_table,
     remove_partition,
     to_table,
-    write_partition,
 )
 
 DASHBOARD = "dashboard.html"
 BLOCK_RECORD = ".b2"
+CHANGED = "file does not match the checksum recorded when it was written"
 
 
 @dataclass(frozen=True)
@@ -388,18 +388,78 @@ class RunStore:
         """Where a table lives (for messages)."""
         return self.root.url(posixpath.join("tables", spec.name))
 
+    @staticmethod
+    def run_table_rels(spec: TableSpec) -> tuple[str, str]:
+        """An unpartitioned table's file and its record (size and digest; hidden, so parquet
+        dataset readers and result listings pass it by)."""
+        base = posixpath.join("tables", spec.name)
+        return posixpath.join(base, PART), posixpath.join(base, "." + PART + BLOCK_RECORD)
+
     def write_run_table(self, spec: TableSpec, rows: list[dict[str, Any]]) -> str:
-        """An unpartitioned table (``tables/<name>/part-0.parquet``), rewritten whole."""
-        return write_partition(self.root, spec, {}, to_table(spec, rows))
+        """An unpartitioned table (``tables/<name>/part-0.parquet``), rewritten whole, then its
+        record (size and digest: :meth:`check_run_table`)."""
+        rel, record = self.run_table_rels(spec)
+        data = encode(spec, to_table(spec, rows))
+        self.root.remove(record)  # a file without its record is checked by its footer only
+        put_file(self.root, rel, data)
+        self.root.write_json(record, {"size": len(data), "blake2b": digest(data)})
+        return rel
+
+    def check_run_table(self, spec: TableSpec, full: bool = False) -> list[Damage]:
+        """What is damaged in an unpartitioned (report) table: cheap, its size against its record
+        (no record: its footer parses); ``full``, its digest and every page's checksum."""
+        rel, record_rel = self.run_table_rels(spec)
+        where = self.root.url(rel)
+        try:
+            record = self.root.read_json(record_rel)
+        except StoreError as exc:
+            return [Damage(exc.where, exc.problem, table=spec.name)]
+        if record is not None and not full:
+            size = self.root.size(rel)
+            if size == record.get("size"):
+                return []
+            problem = (
+                "file is missing"
+                if size is None
+                else f"file has {size} bytes, {record.get('size')} when written"
+            )
+            return [Damage(where, problem, table=spec.name)]
+        data = self.root.read_bytes(rel)
+        if data is None:
+            return [Damage(where, "file is missing", table=spec.name)]
+        if record is not None and digest(data) != record.get("blake2b"):
+            return [Damage(where, CHANGED, table=spec.name)]
+        if not footer_ok(data):
+            return [Damage(where, f"parquet file cannot be read ({len(data)} bytes)", table=spec.name)]
+        if full:
+            try:
+                decode(where, data)
+            except DamagedStoreError as exc:
+                return [Damage(where, exc.problem, table=spec.name)]
+        return []
 
     def read_all(self, spec: TableSpec):
-        """A whole table, partition columns included as strings (a pyarrow Table).
+        """A whole table, partition columns included as strings (a pyarrow Table); page checksums
+        are verified, and an unpartitioned table's file against its record.
 
         Raises:
             StoreError: the table was never written.
+            DamagedStoreError: a file of it is truncated, lost or changed.
         """
         if not self.has_table(spec):
             raise StoreError(self.table_url(spec), "table not written yet")
+        if not spec.partition:
+            rel, record_rel = self.run_table_rels(spec)
+            record, data = self.root.read_json(record_rel), self.root.read_bytes(rel)
+            if record is not None and (data is None or digest(data) != record.get("blake2b")):
+                problem = (
+                    "file is missing"
+                    if data is None
+                    else "file does not match the checksum recorded when it was written"
+                )
+                raise DamagedStoreError(
+                    self.root.url(rel), problem, "rerun `dsnet label` on it to rewrite the report"
+                )
         return read_table(self.root, spec)
 
     # -- the dashboard ---------------------------------------------------------------------------

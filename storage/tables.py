@@ -102,8 +102,12 @@ def read_table(root: RootFS, spec: TableSpec) -> pa.Table:
     base = posixpath.join("tables", spec.name)
     part = ds.partitioning(spec.partition_schema, flavor="hive")
     fs = None if root.local else root.fs
+    # page checksums are verified (a flipped bit in a data page is an error, not another value)
+    fmt = ds.ParquetFileFormat(
+        default_fragment_scan_options=ds.ParquetFragmentScanOptions(page_checksum_verification=True)
+    )
     try:
-        return ds.dataset(root.path(base), format="parquet", partitioning=part, filesystem=fs).to_table()
+        return ds.dataset(root.path(base), format=fmt, partitioning=part, filesystem=fs).to_table()
     except (pa.ArrowException, OSError) as exc:
         problem = f"a parquet file of table {spec.name!r} cannot be read ({exc})"
         raise DamagedStoreError(root.url(base), problem) from exc

@@ -120,12 +120,16 @@ def load_shift_weights(path: str | Path) -> dict[str, torch.Tensor] | None:
     """The shifting MLPs' state dict stored with checkpoint ``path``, or None if it has none.
 
     Raises:
-        CheckpointError: the file exists but its sha256 is not the card's ``shift_sha256``
+        CheckpointError: the file is missing though the card records its ``shift_sha256``, or
+            it exists but its sha256 is not the card's ``shift_sha256``
             (tampered, half-written, or saved by a version whose cards did not record it), or it
             cannot be read.
     """
     file = Path(path) / SHIFT_WEIGHTS
     if not file.is_file():
+        if (Path(path) / "card.json").is_file() and read_card(path).shift_sha256:
+            # the card says the checkpoint had them: lost, not absent (no silent fallback weights)
+            raise CheckpointError(file, "shifting weights are missing though the model card records them")
         return None
     card = read_card(path)
     if sha256_file(file) != card.shift_sha256:

@@ -24,8 +24,8 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from dsnet_core.errors import CheckpointError, CheckpointMismatchError
-from dsnet_core.labels import LabelMap, class_map_of
+from dsnet_core.errors import CheckpointError, CheckpointMismatchError, ConfigError
+from dsnet_core.labels import LabelMap, class_map_of, label_map_from_class_map
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
 
@@ -145,9 +145,19 @@ def read_card(path: str | Path) -> ModelCard:
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(card_path, f"not a {FORMAT} model card")
     try:
-        return ModelCard(**data)
+        card = ModelCard(**data)
     except TypeError as exc:
         raise CheckpointError(card_path, f"model card has unexpected fields: {exc}") from exc
+    # a changed class map or architecture is the card's error, found here, not a stage's later
+    try:
+        label_map_from_class_map(card.class_map)
+    except ConfigError as exc:
+        raise CheckpointError(card_path, str(exc)) from exc
+    try:
+        card.config  # noqa: B018 - parses the architecture
+    except (ConfigError, TypeError, KeyError, ValueError, AttributeError) as exc:
+        raise CheckpointError(card_path, f"model card architecture is malformed: {exc}") from exc
+    return card
 
 
 def _diff(expected: dict, found: dict) -> list[str]:

@@ -166,7 +166,7 @@ def status(
     ),
 ) -> None:
     """Per sequence and stage: done / damaged / partial (x of y blocks) / stale / missing, with
-    fingerprints; the damaged files are listed under the table."""
+    fingerprints, then the run's report tables; the damaged files are listed under the table."""
     from rich.console import Console
     from rich.table import Table
 
@@ -199,11 +199,26 @@ def status(
                 "" if m is None else m.fingerprint,
                 "" if m is None or not m.timings else f"{m.timings.get('wall_s', 0):.2f}",
             )
+    damaged += _report_tables(store, table, verify)
     Console(width=140).print(table)
     for d in damaged[:20]:
         typer.echo(f"damaged: {d.where}: {d.problem}")
     if damaged:
         typer.echo(f"{len(damaged)} damaged files: `dsnet label` on this store recomputes them")
+
+
+def _report_tables(store, table, verify: bool) -> list:
+    """One row per report table the run wrote (``done``/``damaged``, sequence ``(run)``); their damage."""
+    from flows.report.tables import REPORT_TABLES
+
+    damaged = []
+    for name, spec in REPORT_TABLES.items():
+        if not store.has_table(spec):
+            continue
+        found = store.check_run_table(spec, full=verify)
+        damaged += found
+        table.add_row("(run)", f"table {name}", "damaged" if found else "done", "", "", "", "")
+    return damaged
 
 
 def _progress_bars():

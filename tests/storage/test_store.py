@@ -298,3 +298,72 @@ def test_block_outputs_are_checked_against_their_records(tmp_path):
     out.unlink()
     with pytest.raises(DamagedStoreError, match="block output is missing"):
         store.read_block_bytes("00", "align", "acc-000000.npz")
+
+
+def test_json_that_is_not_utf8_is_a_typed_error_naming_the_file(tmp_path):
+    """A flipped bit can leave a manifest or record that is not UTF-8: json.loads raised
+    UnicodeDecodeError (a bare ``error: 'utf-8' codec can't decode ...`` line naming no file)."""
+    (tmp_path / "s").mkdir()
+    (tmp_path / "s/manifest.json").write_bytes(b'{"stage": "\xf5align"}')
+    with pytest.raises(StoreError, match=r"s/manifest.json: not valid JSON"):
+        RootFS(str(tmp_path)).read_json("s/manifest.json")
+
+
+def _flip_silently(data: bytes, spec: TableSpec, table: pa.Table) -> bytes:
+    """``data`` with one bit of a data page flipped such that a reader that does not verify page
+    checksums reads other values without an error."""
+    import pyarrow.parquet as pq
+
+    col = pq.read_metadata(pa.BufferReader(data)).row_group(0).column(2)
+    for off in range(col.data_page_offset + 20, col.data_page_offset + col.total_compressed_size):
+        flipped = bytearray(data)
+        flipped[off] ^= 4
+        try:
+            if not pq.read_table(pa.BufferReader(bytes(flipped))).equals(table):
+                return bytes(flipped)
+        except (pa.ArrowException, OSError):
+            continue
+    raise AssertionError("no silently flippable bit found")
+
+
+def test_whole_table_reads_verify_page_checksums(tmp_path):
+    """``read_all`` (the dashboard's and the report's reader) scanned the dataset without page
+    checksum verification: a flipped bit in a data page read back as another number."""
+    store = RunStore(tmp_path)
+    rows = [{"index": i, "frame_id": f"{i:06d}", "n_points": 1000 + i} for i in range(200)]
+    record = store.write_table("00", FRAMES, rows)
+    part = tmp_path / record["path"]
+    part.write_bytes(_flip_silently(part.read_bytes(), FRAMES, to_table(FRAMES, rows)))
+    with pytest.raises(DamagedStoreError, match="table 'frames' cannot be read"):
+        store.read_all(FRAMES)
+
+
+def test_report_tables_have_a_record_checked_by_status_and_readers(tmp_path):
+    """Report tables (rewritten whole by every run) had no size or digest record: ``dsnet status``
+    could not see a truncated, changed or lost one, and a reader took a changed one as data."""
+    store = RunStore(tmp_path)
+    report = TableSpec("score_run", FRAMES.schema, partition=())
+    rows = [{"index": i, "frame_id": f"{i:06d}", "n_points": 1000 + i} for i in range(200)]
+    store.write_run_table(report, rows)
+    part = tmp_path / "tables/score_run/part-0.parquet"
+    good = part.read_bytes()
+    assert store.check_run_table(report) == [] and store.check_run_table(report, full=True) == []
+    assert [p.name for p in part.parent.iterdir() if not p.name.startswith(".")] == ["part-0.parquet"]
+    assert store.read_all(report).equals(to_table(report, rows))
+
+    part.write_bytes(good[:-60])
+    (damage,) = store.check_run_table(report)
+    assert damage.where == str(part) and f"{len(good)} when written" in damage.problem
+
+    part.write_bytes(_flip_silently(good, report, to_table(report, rows)))
+    assert store.check_run_table(report) == []  # same size: the cheap check compares sizes only
+    (damage,) = store.check_run_table(report, full=True)
+    assert damage.where == str(part) and "checksum" in damage.problem
+    with pytest.raises(DamagedStoreError, match=r"score_run/part-0.parquet: file does not match"):
+        store.read_all(report)
+
+    part.unlink()
+    (damage,) = store.check_run_table(report)
+    assert damage.problem == "file is missing"
+    store.write_run_table(report, rows)  # the next run rewrites it whole, with its record
+    assert store.check_run_table(report, full=True) == []

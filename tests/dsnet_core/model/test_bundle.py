@@ -82,3 +82,16 @@ def test_scaled_shift_weights_are_refused_naming_the_file(tmp_path):
     (ckpt / "shift.safetensors").write_bytes(b"")  # truncated
     with pytest.raises(CheckpointError, match=r"shift\.safetensors: shifting weights do not match"):
         load_shift_weights(ckpt)
+
+
+def test_lost_shift_weights_recorded_by_the_card_are_refused(tmp_path):
+    """A deleted shift.safetensors whose sha256 the card records made the shift stage fall back
+    to fixed weights with a log warning: other instance labels, exit 0."""
+    from dsnet_core.errors import CheckpointError
+    from tests.model_helpers import make_checkpoint
+
+    ckpt = make_checkpoint(tmp_path / "ckpt")
+    (ckpt / "shift.safetensors").unlink()
+    with pytest.raises(CheckpointError, match=r"shift\.safetensors: shifting weights are missing"):
+        load_shift_weights(ckpt)
+    assert load_shift_weights(make_checkpoint(tmp_path / "plain", shift_weights=False)) is None

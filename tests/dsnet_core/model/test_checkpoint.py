@@ -123,3 +123,21 @@ def test_predictor_rejects_bad_points(ckpt):
     bad[3, 1] = np.nan
     with pytest.raises(Exception, match=r"finite float \(N, 4\)"):
         pred.predict(bad)
+
+
+def test_card_with_a_malformed_class_map_or_architecture_names_the_card(ckpt):
+    """A flipped bit in the card's class map ("1" -> ")") was found only by the infer stage, as a
+    ConfigError naming no file ("model card class map is incomplete or malformed")."""
+    path, _ = ckpt
+    good = json.loads((path / "card.json").read_text())
+    data = json.loads(json.dumps(good))
+    key = next(iter(data["class_map"]["learning_map_inv"]))
+    data["class_map"]["learning_map_inv"][")"] = data["class_map"]["learning_map_inv"].pop(key)
+    (path / "card.json").write_text(json.dumps(data))
+    with pytest.raises(CheckpointError, match=r"card.json: model card class map is incomplete or malformed"):
+        read_card(path)
+    data = json.loads(json.dumps(good))
+    data["architecture"]["grid"] = "not a grid"
+    (path / "card.json").write_text(json.dumps(data))
+    with pytest.raises(CheckpointError, match=r"card.json: model card architecture is malformed"):
+        read_card(path)

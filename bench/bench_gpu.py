@@ -67,24 +67,31 @@ def checkpoint(preset: str, path: Path) -> Path:
 def forward_rates(ckpt: Path, log: Path, device: torch.device, repeats: int) -> dict[int, float]:
     """k -> frames/s of voxelisation + network + dynamic shifting + clustering."""
     from dsnet_core.instance.clustering import get_clusterer
-    from dsnet_core.instance.clustering_config import clusterer_for
+    from dsnet_core.instance.shifting import DynamicShift
     from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.labels import load_label_map
     from dsnet_core.model.inference import Predictor
+    from dsnet_core.train.shifting import clusterer_for
 
     reader = SemanticKittiReader(log)
     refs = reader.frames("00")
     predictor = Predictor.from_checkpoint(ckpt, device=str(device))
+    thing_lut = load_label_map("semantic-kitti").is_thing()
     out = {}
     for k in (1, 2):
         cloud = np.concatenate([reader.scan(r) for r in refs[:k]])  # poses ~identity over 2 frames
-        clusterer = get_clusterer(clusterer_for(k))
+        cfg = clusterer_for(k).model_copy(update={"feature_dim": predictor.model.config.ins_dim})
+        weights = DynamicShift.with_fixed_weights(
+            (0.0, 1.0, 0.0), cfg.bandwidths, iterations=cfg.iterations, feature_dim=cfg.feature_dim
+        )
+        clusterer = get_clusterer(cfg, weights)
 
         def once(cloud=cloud, clusterer=clusterer) -> None:
             res = predictor.predict(cloud)
-            thing = predictor.label_map.is_thing()[res.sem] if hasattr(predictor, "label_map") else None
-            sel = thing if thing is not None else res.sem > 8
+            sel = thing_lut[res.sem]
+            xyz = np.ascontiguousarray(cloud[sel, :3])
             if sel.any():
-                clusterer.cluster(cloud[sel, :3] + res.offsets[sel], res.features[sel])
+                clusterer.cluster(xyz, np.ascontiguousarray(xyz + res.offsets[sel]), res.features[sel])
 
         out[k] = k / timed(once, device, repeats)
     return out

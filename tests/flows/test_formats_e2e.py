@@ -269,7 +269,7 @@ def test_a_scheduled_tick_labels_each_scene_or_scan_folder_once(prefect_api_url,
     assert auto_label(params, dataset=log)["labelled"] == seqs
     store = RunStore(tmp_path / "runs")
     assert store.read_run_config()["format"] == log
-    assert all(store.read_manifest(s, "stitch").status == "done" for s in seqs)
+    assert all(store.read_manifest(s, "track").status == "done" for s in seqs)  # k = 1: tracked
     assert auto_label(params, dataset=log)["labelled"] == []  # nothing new or stale
     if log == "folder":
         shutil.copytree(watched / "drive1", watched / "drive2")

@@ -29,7 +29,10 @@ SEQ = "00"
 
 def _request(log, root, ckpt, from_stage=None):
     stages = {"align": {"scans": 1}, "infer": {"checkpoint": str(ckpt)}, "shift": {"clusterer": FAST_SHIFT}}
-    return req(str(log), str(root), [SEQ], stages, {"block_size": 3}, from_stage=from_stage)
+    stitched = {"temporal": "stitch"}  # the stitch stage's files are what these tests damage
+    return req(
+        str(log), str(root), [SEQ], stages, {"block_size": 3}, from_stage=from_stage, method_options=stitched
+    )
 
 
 @dataclass(frozen=True)

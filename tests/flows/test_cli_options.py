@@ -31,3 +31,11 @@ def test_model_options_reach_the_infer_stage_config():
     }
     res = CliRunner().invoke(app, ["label", "x", "--run", "y", "--tta", "0"], env={"COLUMNS": "250"})
     assert res.exit_code == 2 and "--tta" in res.output
+
+
+def test_a_local_dask_cluster_listens_on_loopback_only():
+    from flows.label import task_runner
+
+    runner = task_runner(workers=2)  # not started: its settings are what matters
+    assert runner.cluster_kwargs["host"] == "127.0.0.1"
+    assert runner.cluster_kwargs["dashboard_address"].startswith("127.0.0.1:")

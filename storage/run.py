@@ -356,22 +356,30 @@ class RunStore:
         self, sequence: str, spec: TableSpec, record: dict[str, Any] | None, full: bool
     ) -> list[Damage]:
         rel = posixpath.join(partition_rel(spec, {"sequence": sequence}), PART)
+        return self._check_table_file(rel, spec, record, full)
+
+    def _check_table_file(
+        self, rel: str, spec: TableSpec, record: dict[str, Any] | None, full: bool
+    ) -> list[Damage]:
+        """One parquet file against its record (size and digest) or, without one, its footer;
+        ``full``: its digest and every page's checksum too."""
         where = self.root.url(rel)
         if record is not None and not full:
             size = self.root.size(rel)
-            if size == record["size"]:
+            if size == record.get("size"):
                 return []
             problem = (
-                "file is missing" if size is None else f"file has {size} bytes, {record['size']} when written"
+                "file is missing"
+                if size is None
+                else f"file has {size} bytes, {record.get('size')} when written"
             )
             return [Damage(where, problem, table=spec.name)]
         data = self.root.read_bytes(rel)
         if data is None:
             return [Damage(where, "file is missing", table=spec.name)]
-        if record is not None and digest(data) != record["blake2b"]:
-            problem = "file does not match the checksum recorded when it was written"
-            return [Damage(where, problem, table=spec.name)]
-        if record is None and not footer_ok(data):
+        if record is not None and digest(data) != record.get("blake2b"):
+            return [Damage(where, CHANGED, table=spec.name)]
+        if not footer_ok(data):
             return [Damage(where, f"parquet file cannot be read ({len(data)} bytes)", table=spec.name)]
         if full:
             try:
@@ -409,34 +417,11 @@ class RunStore:
         """What is damaged in an unpartitioned (report) table: cheap, its size against its record
         (no record: its footer parses); ``full``, its digest and every page's checksum."""
         rel, record_rel = self.run_table_rels(spec)
-        where = self.root.url(rel)
         try:
             record = self.root.read_json(record_rel)
         except StoreError as exc:
             return [Damage(exc.where, exc.problem, table=spec.name)]
-        if record is not None and not full:
-            size = self.root.size(rel)
-            if size == record.get("size"):
-                return []
-            problem = (
-                "file is missing"
-                if size is None
-                else f"file has {size} bytes, {record.get('size')} when written"
-            )
-            return [Damage(where, problem, table=spec.name)]
-        data = self.root.read_bytes(rel)
-        if data is None:
-            return [Damage(where, "file is missing", table=spec.name)]
-        if record is not None and digest(data) != record.get("blake2b"):
-            return [Damage(where, CHANGED, table=spec.name)]
-        if not footer_ok(data):
-            return [Damage(where, f"parquet file cannot be read ({len(data)} bytes)", table=spec.name)]
-        if full:
-            try:
-                decode(where, data)
-            except DamagedStoreError as exc:
-                return [Damage(where, exc.problem, table=spec.name)]
-        return []
+        return self._check_table_file(rel, spec, record, full)
 
     def read_all(self, spec: TableSpec):
         """A whole table, partition columns included as strings (a pyarrow Table); page checksums

@@ -57,6 +57,21 @@ def volume_scans(ctx: StageContext) -> int:
     return int(ctx.manifest("align").config.get("scans", 1))
 
 
+def sequential_frames_plan(ctx: StageContext) -> Plan:
+    """The plan of a stage that labels every frame of a sequence from align's volumes in one
+    sequential block (``stitch``, ``track``): an item per frame, the windows and frame sizes."""
+    t = ctx.frames.to_pydict()
+    align = ctx.manifest("align")
+    ok = [i for i, s in zip(t["index"], t["status"], strict=True) if s == "ok"]
+    sizes = dict(zip(t["index"], t["n_points"], strict=True))
+    return Plan(
+        n_items=len(t["index"]),
+        max_points=max((int(sizes[i]) for i in ok), default=0),
+        meta={"windows": align.plan["windows"], "frame_points": [int(sizes[i]) for i in t["index"]]},
+        blocks=[list(range(len(t["index"])))],
+    )
+
+
 class AlignStage(Stage):
     name = "align"
     upstream = ("ingest",)

@@ -38,6 +38,7 @@ import numpy as np
 import pyarrow as pa
 
 from storage.contract import TableSpec
+from tasks.align import sequential_frames_plan
 from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
 
 log = logging.getLogger(__name__)
@@ -90,16 +91,7 @@ class StitchStage(Stage):
     tables = (TRACKS,)
 
     def plan(self, ctx: StageContext) -> Plan:
-        t = ctx.frames.to_pydict()
-        align = ctx.manifest("align")
-        ok = [i for i, s in zip(t["index"], t["status"], strict=True) if s == "ok"]
-        sizes = dict(zip(t["index"], t["n_points"], strict=True))
-        return Plan(
-            n_items=len(t["index"]),
-            max_points=max((int(sizes[i]) for i in ok), default=0),
-            meta={"windows": align.plan["windows"], "frame_points": [int(sizes[i]) for i in t["index"]]},
-            blocks=[list(range(len(t["index"])))],
-        )
+        return sequential_frames_plan(ctx)
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         from dsnet_core.temporal.stitching import Stitcher, VolumeLabels

@@ -178,6 +178,7 @@ def stage_settings(
     device: str | None = None,
     tta: int = 1,
     tta_flip: bool = False,
+    equivariant: int | None = None,
 ) -> dict[str, dict[str, Any]]:
     """The per-stage configs of the command-line settings.
 
@@ -190,6 +191,7 @@ def stage_settings(
         max_points: ingest's per-frame point limit (None: its default).
         device: the model's torch device for infer (None: cpu).
         tta: yaw rotations averaged by infer (1: none); ``tta_flip`` adds their mirror images.
+        equivariant: the n the checkpoint must have been trained with (None: whatever it has).
 
     Raises:
         ValueError: ``clusterer`` is neither a kind nor valid JSON.
@@ -207,6 +209,8 @@ def stage_settings(
         infer["device"] = device
     if tta != 1 or tta_flip:
         infer.update(tta=tta, tta_flip=tta_flip)
+    if equivariant is not None:
+        infer["equivariant"] = equivariant
     if infer:
         stages["infer"] = infer
     if clusterer:

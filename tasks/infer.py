@@ -40,6 +40,8 @@ class InferConfig(StageConfig):
         tta: test-time augmentation: semantic logits averaged over this many yaw rotations (offsets
             rotated back first; :mod:`dsnet_core.model.tta`); 1 = the plain forward.
         tta_flip: also average each rotation's mirror image (2 × ``tta`` passes).
+        equivariant: the ``n`` of a C_n-equivariant checkpoint the run asks for (``--equivariant``):
+            labelling refuses a checkpoint trained with another n; None takes the card's.
     """
 
     checkpoint: str | None = None
@@ -47,6 +49,7 @@ class InferConfig(StageConfig):
     batch: int = Field(1, ge=1, le=64)
     tta: int = Field(1, ge=1, le=64)
     tta_flip: bool = False
+    equivariant: int | None = Field(None, ge=1)
 
 
 def _check_device(device: str) -> None:
@@ -119,6 +122,14 @@ class InferStage(Stage):
         path = self.checkpoint(ctx).resolve()
         card = read_card(path)
         cfg = card.config
+        want = ctx.config.equivariant
+        if want is not None and want != cfg.equivariant:
+            from dsnet_core.errors import ConfigError
+
+            raise ConfigError(
+                f"--equivariant {want}: checkpoint {path} was trained with --equivariant {cfg.equivariant}; "
+                "label with its n, or train one with this n (dsnet train --equivariant N)"
+            )
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),

@@ -68,6 +68,9 @@ def label(
         1, "--tta", min=1, max=64, help="Test-time augmentation: average over N yaw rotations (1: off)."
     ),
     tta_flip: bool = typer.Option(False, "--tta-flip", help="With --tta: also average the mirror images."),
+    equivariant: int = typer.Option(
+        None, "--equivariant", min=1, help="Require a C_n-equivariant checkpoint trained with this n."
+    ),
 ) -> None:
     """Label a log into a run store (ingest → align → infer → shift → fuse → stitch → score), resuming
     whatever is already done there."""
@@ -87,7 +90,16 @@ def label(
             method=method,
             method_options={} if temporal == "auto" else {"temporal": temporal},
             stages=stage_settings(
-                scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip
+                scans,
+                stride,
+                checkpoint,
+                clusterer,
+                estimate_poses,
+                max_points,
+                device,
+                tta,
+                tta_flip,
+                equivariant,
             ),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
             from_stage=from_stage,

@@ -64,6 +64,13 @@ def train(
     amp: str = typer.Option(
         "off", "--amp", help="Mixed precision: off, bf16 (CPU or CUDA) or fp16 (CUDA, gradient scaler)."
     ),
+    equivariant: int = typer.Option(
+        1,
+        "--equivariant",
+        min=1,
+        help="Eq-4D: a C_n yaw-equivariant network (n must divide the azimuth cells).",
+    ),
+    pooling: str = typer.Option("mean", "--pooling", help="Equivariant: invariant pooling, mean or max."),
 ) -> None:
     """Train DS-Net (semantic → instance head → shifting) and write a checkpoint with a model card."""
     import logging
@@ -114,6 +121,8 @@ def train(
             if len(cells) != 3:
                 raise typer.BadParameter(f"--grid wants three cell counts 'ρ,φ,z', got '{grid}'")
             model_config = replace(model_config, grid=replace(model_config.grid, size=cells))
+        if equivariant != 1 or pooling != "mean":
+            model_config = replace(model_config, equivariant=equivariant, pooling=pooling)
         trainer = Trainer(
             out, model_config, reader, seqs, val_reader, vseqs, label_map, cfg, resume, init_from
         )

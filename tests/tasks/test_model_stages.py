@@ -184,6 +184,9 @@ def test_tta_in_the_infer_stage_equals_the_predictors_and_reprocesses_infer_onwa
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="no CUDA device"):
             prepare_stage(store, P, "00", "infer", cuda, "r-cuda")
+    eq = {**run, "stages": {**run["stages"], "infer": {**run["stages"]["infer"], "equivariant": 4}}}
+    with pytest.raises(ConfigError, match="was trained with --equivariant 1"):
+        prepare_stage(store, P, "00", "infer", eq, "r-eq")
 
 
 KILL_AT_THIRD_VOLUME = (

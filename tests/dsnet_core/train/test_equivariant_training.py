@@ -52,3 +52,46 @@ def test_equivariant_training_stages(tmp_path):
     assert changed == {"ins_head", "anchor_head"}
     with pytest.raises(CheckpointMismatchError, match="equivariant"):
         run(replace(EQ4, equivariant=2), resume=True, stage="offset", epochs={"offset": 2})
+
+
+def test_a_trained_equivariant_model_is_equivariant_and_the_cli_records_n(tmp_path):
+    """``dsnet train --equivariant 4`` on a tiny log; the trained network's semantics are invariant
+    and its offsets rotate with yaw rotations by multiples of 90° (float64 rotations, points kept
+    1e-6 rad from cell boundaries)."""
+    import numpy as np
+    from typer.testing import CliRunner
+
+    from dsnet_core.model.equivariant import rotate_xy
+    from flows.cli import app
+    from tests.dsnet_core.model.rotation_helpers import away_from_cell_boundaries, rotate64
+
+    log = write_tiny_log(tmp_path / "log", frames=2)
+    args = ["train", str(log), "--out", str(tmp_path / "eq"), "--preset", "tiny", "--grid", "24,32,8"]
+    args += [
+        "--epochs",
+        "semantic=1,offset=1,shift=0",
+        "--equivariant",
+        "4",
+        "--pooling",
+        "max",
+        "--no-augment",
+    ]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    card = read_card(tmp_path / "eq")
+    assert card.architecture["equivariant"] == 4 and card.architecture["pooling"] == "max"
+    model, _ = load_checkpoint(tmp_path / "eq")
+    pts = away_from_cell_boundaries(2000, seed=3, grid=model.config.grid).astype(np.float64)
+    with torch.inference_mode():
+        ref = model([torch.from_numpy(pts)])
+        for j in (1, 2, 3):
+            angle = 2 * math.pi * j / 4
+            out = model([torch.from_numpy(rotate64(pts, angle, dtype=np.float64))])
+            assert torch.equal(out.logits.argmax(1), ref.logits.argmax(1))
+            expect = rotate_xy(ref.offsets.double(), torch.tensor(angle)).float()
+            # the point MLP sees float32-rounded rotated coordinates; trained weights amplify that
+            # rounding to 1.9e-5 m on ~2 m offsets (random weights stay under 1e-5: test_equivariant.py)
+            torch.testing.assert_close(out.offsets, expect, atol=5e-5, rtol=0)
+    bad = [*args[:3], str(tmp_path / "bad"), *args[4:10], "--equivariant", "5"]
+    res = CliRunner().invoke(app, bad, env={"COLUMNS": "250"})
+    assert res.exit_code == 2 and "32" in res.output, res.output  # 5 does not divide 32 azimuth cells

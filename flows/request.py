@@ -76,6 +76,8 @@ class LabelRequest(BaseModel):
         if self.method == "dsnet" and options.get("temporal", "auto") == "auto":
             scans = int(self.stages.get("align", {}).get("scans", 1))
             options["temporal"] = "track" if scans == 1 else "stitch"
+        elif options.get("temporal") == "auto":
+            del options["temporal"]  # the method's own default
         pipeline = get_pipeline(self.method, **options)
         for name in (self.from_stage, self.until, *self.stages):
             pipeline.check_stage(name)
@@ -113,8 +115,12 @@ class LabelRequest(BaseModel):
         """
         names = pipeline.names() if names is None else names
         out = {name: dict(self.stages.get(name, {})) for name in names}
-        if "ingest" in out and "grid" not in out["ingest"] and "infer" in pipeline:
-            grid = model_grid(self.stages.get("infer", {}), self.stages.get("align", {}))
+        if "ingest" in out and "grid" not in out["ingest"]:
+            grid = None
+            if "infer" in pipeline:
+                grid = model_grid(self.stages.get("infer", {}), self.stages.get("align", {}))
+            elif "most" in pipeline:
+                grid = most_model_grid(self.stages.get("most", {}))
             if grid is not None:
                 out["ingest"]["grid"] = grid
         return out
@@ -134,6 +140,20 @@ def model_grid(infer: dict[str, Any], align: dict[str, Any]) -> dict[str, list[f
     if path is None:
         return None
     grid = read_card(path).config.grid
+    return {"min_bound": list(grid.min_bound), "max_bound": list(grid.max_bound)}
+
+
+def most_model_grid(most: dict[str, Any]) -> dict[str, list[float]] | None:
+    """The grid bounds of the MOST model a ``most`` config names (the bundled one when it names
+    none); None when no MOST model is bundled."""
+    from dsnet_core.model.bundle import bundled_most_checkpoint
+    from dsnet_core.most.checkpoint import read_most_card
+    from dsnet_core.most.config import MostConfig
+
+    path = most.get("checkpoint") or bundled_most_checkpoint(int(most.get("scans", 3)))
+    if path is None:
+        return None
+    grid = MostConfig.from_dict(read_most_card(path).architecture).backbone.grid
     return {"min_bound": list(grid.min_bound), "max_bound": list(grid.max_bound)}
 
 
@@ -179,8 +199,13 @@ def stage_settings(
     tta: int = 1,
     tta_flip: bool = False,
     equivariant: int | None = None,
+    method: str = "dsnet",
 ) -> dict[str, dict[str, Any]]:
     """The per-stage configs of the command-line settings.
+
+    For ``method="most"``, ``scans`` is MOST's accumulation (the current scan and k − 1 past ones,
+    stride 1) and ``align`` runs on single scans; the DS-Net-only settings (stride, clusterer,
+    TTA, equivariance) are refused.
 
     Args:
         scans: k, scans per volume.
@@ -192,10 +217,24 @@ def stage_settings(
         device: the model's torch device for infer (None: cpu).
         tta: yaw rotations averaged by infer (1: none); ``tta_flip`` adds their mirror images.
         equivariant: the n the checkpoint must have been trained with (None: whatever it has).
+        method: the labelling method (:data:`tasks.methods.METHODS`).
 
     Raises:
-        ValueError: ``clusterer`` is neither a kind nor valid JSON.
+        ValueError: ``clusterer`` is neither a kind nor valid JSON, or a setting the method lacks.
     """
+    if method == "most":
+        return _most_settings(
+            scans,
+            stride,
+            checkpoint,
+            clusterer,
+            estimate_poses,
+            max_points,
+            device,
+            tta,
+            tta_flip,
+            equivariant,
+        )
     stages: dict[str, dict[str, Any]] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
     ingest = {"estimate_poses": True} if estimate_poses else {}
     if max_points is not None:
@@ -219,4 +258,41 @@ def stage_settings(
         except json.JSONDecodeError as exc:
             raise ValueError(f"--clusterer is not valid JSON: {exc}") from None
         stages["shift"] = {"clusterer": cfg}
+    return stages
+
+
+def _most_settings(
+    scans: int,
+    stride: int | None,
+    checkpoint: str | None,
+    clusterer: str | None,
+    estimate_poses: bool,
+    max_points: int | None,
+    device: str | None,
+    tta: int,
+    tta_flip: bool,
+    equivariant: int | None,
+) -> dict[str, dict[str, Any]]:
+    """:func:`stage_settings` for MOST (see there)."""
+    refused = {
+        "--stride": stride not in (None, 1),
+        "--clusterer": bool(clusterer),
+        "--tta": tta != 1 or tta_flip,
+        "--equivariant": equivariant is not None,
+    }
+    bad = [flag for flag, given in refused.items() if given]
+    if bad:
+        raise ValueError(f"{', '.join(bad)}: not a setting of method most (it applies to --method dsnet)")
+    stages: dict[str, dict[str, Any]] = {"align": {"scans": 1}}
+    ingest: dict[str, Any] = {"estimate_poses": True} if estimate_poses else {}
+    if max_points is not None:
+        ingest["max_points"] = max_points
+    if ingest:
+        stages["ingest"] = ingest
+    most: dict[str, Any] = {"scans": scans}
+    if checkpoint:
+        most["checkpoint"] = str(Path(checkpoint).expanduser().resolve())
+    if device:
+        most["device"] = device
+    stages["most"] = most
     return stages

@@ -1,7 +1,8 @@
 """The methods a run can use, each a factory of its :class:`~tasks.pipeline.Pipeline`.
 
 ``dsnet`` is DS-Net (k = 1) and 4D-DS-Net (k > 1): ingest → align → infer → shift → fuse →
-stitch → score. A new method adds one factory to :data:`METHODS`; stages shared with another
+stitch (or track) → score. ``most`` is MOST: ingest → align (single scans) → most → track → score.
+A new method adds one factory to :data:`METHODS`; stages shared with another
 method (ingest, align) keep their names, so switching methods recomputes only what differs.
 """
 
@@ -14,6 +15,7 @@ from tasks.align import AlignStage
 from tasks.fuse import FuseStage
 from tasks.infer import InferStage
 from tasks.ingest import IngestStage
+from tasks.most import MostStage
 from tasks.pipeline import Pipeline
 from tasks.score import ScoreStage
 from tasks.shift import ShiftStage
@@ -46,7 +48,21 @@ def dsnet(temporal: str = "stitch") -> Pipeline:
     return Pipeline("dsnet", stages, labels=temporal, options=options)
 
 
-METHODS: dict[str, Callable[..., Pipeline]] = {"dsnet": dsnet}
+def most(temporal: str = "track") -> Pipeline:
+    """MOST: detections, memberships and learned velocities per frame, tracked into sequence ids.
+
+    Raises:
+        ValueError: a ``temporal`` other than ``track`` (MOST's frames share no volume to stitch).
+    """
+    if temporal != "track":
+        raise ValueError(
+            f"method most associates over time by tracking only (--temporal track), not {temporal!r}"
+        )
+    stages = (IngestStage(), AlignStage(), MostStage(), TrackStage(source="most"), ScoreStage(labels="track"))
+    return Pipeline("most", stages, labels="track")
+
+
+METHODS: dict[str, Callable[..., Pipeline]] = {"dsnet": dsnet, "most": most}
 DEFAULT_METHOD = "dsnet"
 
 

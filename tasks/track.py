@@ -66,14 +66,27 @@ TRACKED = TableSpec(
 )
 
 
+SOURCES = ("fuse", "most")
+"""Stages whose per-volume ``sem`` and ``inst`` arrays ``track`` can follow."""
+
+
 class TrackStage(Stage):
+    """Tracks ``source``'s instances: DS-Net's fused instances by their centroids (constant-velocity
+    model), or MOST's detections by their modal centres and learned velocities (its ``detections``
+    table)."""
+
     name = "track"
-    upstream = ("fuse", "align")
     version = "1"
     Config = TrackConfig
     item = "frame"
     arrays = (FRAME_LABEL,)
     tables = (TRACKED,)
+
+    def __init__(self, source: str = "fuse") -> None:
+        if source not in SOURCES:
+            raise ValueError(f"track cannot follow stage {source!r}; sources are {SOURCES}")
+        self.source = source
+        self.upstream = (source, "align")
 
     def plan(self, ctx: StageContext) -> Plan:
         return sequential_frames_plan(ctx)
@@ -103,7 +116,8 @@ class TrackStage(Stage):
             tracker = Tracker(label_map, **ctx.config.model_dump())
         else:
             log.info("track %s resumes after frame %d from its saved state", ctx.sequence, order[start - 1])
-        align, fuse = ctx.arrays("align"), ctx.arrays("fuse")
+        align, fuse = ctx.arrays("align"), ctx.arrays(self.source)
+        detections = _detections(ctx) if self.source == "most" else None
         cached: tuple[int, dict, dict] | None = None
         for k in range(start, len(order)):
             f = order[k]
@@ -120,11 +134,15 @@ class TrackStage(Stage):
             sem = fused["sem"][sel].astype(np.int64)
             inst = fused["inst"][sel].astype(np.int64)
             thing = thing_of[sem]
-            ids, cent, cls = instance_centroids(xyz, sem, inst, thing)
             ref = refs[v]
             world = None if pose.get(ref) is None else np.asarray(pose[ref], np.float64).reshape(4, 4)
             time = stamp.get(f)
-            tid = tracker.add_detections(cent, cls, world, time if time is not None else float(f))
+            if detections is None:
+                ids, cent, cls = instance_centroids(xyz, sem, inst, thing)
+                tid = tracker.add_detections(cent, cls, world, time if time is not None else float(f))
+            else:  # MOST: modal centres with learned velocities (m/s: frames without stamps at 10 Hz)
+                ids, cent, cls, vel = _frame_detections(detections, v, inst)
+                tid = tracker.add_detections(cent, cls, world, time if time is not None else 0.1 * f, vel)
             label = np.zeros(int(frame_points[f]), np.uint32)
             label[vol["source_index"][sel]] = relabel(label_map, sem, inst, ids, tid, thing)
             _summarise(summary, f, label, tid, cls)
@@ -163,6 +181,28 @@ class TrackStage(Stage):
             return None, 0, {}
         summary = {int(i): row for i, row in saved["summary"].items()}
         return Tracker.from_state(saved["state"], label_map), k + 1, summary
+
+
+def _detections(ctx: StageContext) -> dict[int, dict[str, np.ndarray]]:
+    """MOST's ``detections`` table by volume: ids, centres, classes, velocities."""
+    t = ctx.table("most", "detections")
+    index = t["index"].to_numpy()
+    cols = {
+        "id": t["id"].to_numpy().astype(np.int64),
+        "class_id": t["class_id"].to_numpy().astype(np.int64),
+        "centre": np.asarray(t["centre"].to_pylist(), np.float64).reshape(-1, 3),
+        "velocity": np.asarray(t["velocity"].to_pylist(), np.float64).reshape(-1, 2),
+    }
+    return {int(v): {k: c[index == v] for k, c in cols.items()} for v in np.unique(index)}
+
+
+def _frame_detections(detections: dict, volume: int, inst: np.ndarray):
+    """One frame's detections that own points: ids, centres ``(M, 3)``, classes, velocities ``(M, 2)``."""
+    d = detections.get(volume)
+    if d is None:
+        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 2))
+    keep = np.isin(d["id"], inst[inst > 0])
+    return d["id"][keep], d["centre"][keep], d["class_id"][keep], d["velocity"][keep]
 
 
 def _ref_frames(ctx: StageContext) -> dict[int, int]:

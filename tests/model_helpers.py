@@ -54,3 +54,39 @@ def add_volume(self, volume):
     return _orig(self, volume)
 st.Stitcher.add_volume = add_volume
 """
+
+
+def make_most_checkpoint(path: Path, seed: int = 0, cars: bool = False) -> Path:
+    """Write a random-weight MOST checkpoint (seeded, :data:`TEST_CONFIG`'s backbone, a 1 m BEV grid).
+
+    ``cars``: bias the semantic head towards car, the car heatmap and the memberships up, so that
+    random weights
+    still detect instances and give them points (wiring tests of the whole inference path).
+    """
+    from dataclasses import replace
+
+    from dsnet_core.model.presets import PRESETS
+    from dsnet_core.most.checkpoint import save_most_checkpoint
+    from dsnet_core.most.config import BevGrid, MostConfig
+    from dsnet_core.most.network import MostNet
+
+    torch.manual_seed(seed)
+    backbone = replace(PRESETS["tiny"], width=2, point_mlp=(8, 8), compress=4, grid=TEST_CONFIG.grid)
+    config = MostConfig(
+        backbone=backbone, bev=BevGrid(half_extent=50.0, cell=1.0), bev_channels=8, mem_widths=(16, 16, 8)
+    )
+    card = ModelCard(
+        architecture={},
+        class_map=class_map_of(load_label_map("semantic-kitti")),
+        training_data={"note": f"random weights, seed {seed}: wiring tests only"},
+        code_version="test",
+    )
+    net = MostNet(config).eval()
+    if cars:
+        with torch.no_grad():
+            net.sem_head.conv.bias[1] += 4.0
+            net.bev_head.heatmap.bias[0] = 2.0
+            last = [m for m in net.pointseg.modules() if isinstance(m, torch.nn.Linear)][-1]
+            last.bias += 3.0  # PointSegMLP: most RoI points are members
+    save_most_checkpoint(path, net, card)
+    return Path(path)

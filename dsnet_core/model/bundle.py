@@ -86,16 +86,41 @@ def resolve_checkpoint(path: str | Path | None, scans: int = 1) -> Path:
     return path
 
 
+def resolve_most_checkpoint(path: str | Path | None, scans: int = 3) -> Path:
+    """``path`` (a MOST checkpoint folder), or the bundled MOST model for ``scans``-scan input.
+
+    Raises:
+        CheckpointError: None given and no bundled MOST model, or ``path`` is not a MOST checkpoint
+            (a DS-Net one included: the message says which method it belongs to).
+    """
+    from dsnet_core.most.checkpoint import read_most_card
+
+    if path is None:
+        found = bundled_most_checkpoint(scans)
+        if found is None:
+            raise CheckpointError(
+                bundled_dir().parent,
+                "no bundled MOST model: pass a MOST checkpoint (dsnet label --method most --checkpoint "
+                "PATH; train one with dsnet train --method most)",
+            )
+        return found
+    path = Path(path).expanduser()
+    read_most_card(path)  # typed error naming the card when it is not a MOST checkpoint
+    return path
+
+
 def checkpoint_digest(path: str | Path) -> str:
-    """A content digest of a checkpoint: the card (which holds the weights' sha256) and the
-    shifting weights' sha256. Cheap: the network weights are not re-read (``load_checkpoint``
-    verifies them against the card's hash when the model is loaded).
+    """A content digest of a checkpoint (either method's): the card (which holds the weights'
+    sha256) and the shifting weights' sha256. Cheap: the network weights are not re-read
+    (``load_checkpoint`` verifies them against the card's hash when the model is loaded).
 
     Returns:
         32 hex digits.
     """
+    from dsnet_core.most.checkpoint import checkpoint_method, read_most_card
+
     path = Path(path)
-    card = read_card(path)
+    card = read_most_card(path) if checkpoint_method(path) == "most" else read_card(path)
     h = hashlib.blake2b(digest_size=16)
     h.update(
         json.dumps({k: v for k, v in card.__dict__.items() if k != "code_version"}, sort_keys=True).encode()

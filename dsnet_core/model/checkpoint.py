@@ -143,7 +143,10 @@ def read_card(path: str | Path) -> ModelCard:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise CheckpointError(card_path, f"model card is not valid JSON: {exc}") from exc
     if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise CheckpointError(card_path, f"not a {FORMAT} model card")
+        hint = ""
+        if isinstance(data, dict) and str(data.get("format", "")).startswith("most-checkpoint"):
+            hint = " — a MOST checkpoint: label with --method most"
+        raise CheckpointError(card_path, f"not a {FORMAT} model card{hint}")
     try:
         card = ModelCard(**data)
     except TypeError as exc:

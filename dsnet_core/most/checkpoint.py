@@ -68,8 +68,12 @@ def read_most_card(path: str | Path) -> ModelCard:
     path = Path(path)
     data = _card_json(path)
     if data.get("format") != MOST_FORMAT:
+        hint = (
+            " — a DS-Net checkpoint: label with --method dsnet" if data.get("format") == DSNET_FORMAT else ""
+        )
         raise CheckpointError(
-            path / CARD, f"not a MOST checkpoint (format {data.get('format')!r}, expected {MOST_FORMAT})"
+            path / CARD,
+            f"not a MOST checkpoint (format {data.get('format')!r}, expected {MOST_FORMAT}){hint}",
         )
     try:
         return ModelCard(**data)

@@ -28,7 +28,13 @@ def label(
         None, "--max-points", min=1, help="Refuse frames with more points (default 2,000,000): memory guard."
     ),
     method: str = typer.Option("dsnet", "--method", help="Labelling method (see the README's method table)."),
-    scans: int = typer.Option(2, min=1, max=16, help="k, scans per 4D volume (1 = 3D, 2 = 4D default)."),
+    scans: int = typer.Option(
+        None,
+        min=1,
+        max=16,
+        help="k: scans per 4D volume for dsnet (1 = 3D, default 2); for most the current scan plus k-1 "
+        "past scans (default 3).",
+    ),
     stride: int = typer.Option(None, min=1, help="Step between volumes (default k-1, or 1 for k=1)."),
     checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled demo model)."),
     clusterer: str = typer.Option(
@@ -72,12 +78,14 @@ def label(
         None, "--equivariant", min=1, help="Require a C_n-equivariant checkpoint trained with this n."
     ),
 ) -> None:
-    """Label a log into a run store (ingest → align → infer → shift → fuse → stitch → score), resuming
-    whatever is already done there."""
+    """Label a log into a run store (dsnet: ingest → align → infer → shift → fuse → stitch|track →
+    score; most: ingest → align → most → track → score), resuming whatever is already done there."""
     if on_error not in ("fail", "skip"):
         raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
     if workers and dask_address:
         raise typer.BadParameter("give --workers or --dask-address, not both")
+    if scans is None:
+        scans = 3 if method == "most" else 2
     from flows.request import LabelRequest, parse_reader_options, stage_settings
 
     with errors_exit():
@@ -100,6 +108,7 @@ def label(
                 tta,
                 tta_flip,
                 equivariant,
+                method,
             ),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
             from_stage=from_stage,

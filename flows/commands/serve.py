@@ -33,7 +33,8 @@ def serve(
     name: str = typer.Option(
         None, help="Dataset name (artifact keys, deployment name); default: the log's folder."
     ),
-    scans: int = typer.Option(2, help="k, scans per 4D volume (1 = 3D; default 2 as in dsnet label)."),
+    method: str = typer.Option("dsnet", "--method", help="Labelling method: dsnet or most (as dsnet label)."),
+    scans: int = typer.Option(None, help="k as in dsnet label (default 2 for dsnet, 3 for most)."),
     checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled model)."),
     until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
     estimate_poses: bool = typer.Option(
@@ -61,8 +62,13 @@ def serve(
             root=runs,
             format=format,
             reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
+            method=method,
             stages=stage_settings(
-                scans, checkpoint=checkpoint, estimate_poses=estimate_poses, max_points=max_points
+                scans or (3 if method == "most" else 2),
+                checkpoint=checkpoint,
+                estimate_poses=estimate_poses,
+                max_points=max_points,
+                method=method,
             ),
             until=until,
         )

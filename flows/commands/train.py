@@ -23,11 +23,29 @@ def parse_epochs(text: str) -> dict[str, int]:
     return out
 
 
+def with_grid(config, grid: str | None):
+    """``config`` (a :class:`~dsnet_core.model.presets.ModelConfig`) with ``--grid 'ρ,φ,z'`` cells."""
+    from dataclasses import replace
+
+    if not grid:
+        return config
+    cells = tuple(int(v) for v in grid.split(",") if v.strip().isdigit())
+    if len(cells) != 3:
+        raise typer.BadParameter(f"--grid wants three cell counts 'ρ,φ,z', got '{grid}'")
+    return replace(config, grid=replace(config.grid, size=cells))
+
+
 def train(
     data: Path = typer.Argument(..., help="Training log root (SemanticKITTI layout)."),
     out: Path = typer.Option(..., "--out", help="Checkpoint folder (written every epoch)."),
-    stage: str = typer.Option("all", help="semantic | offset | shift | all"),
-    scans: int = typer.Option(1, help="Scans per 4D volume (1 = single scan)."),
+    method: str = typer.Option(
+        "dsnet", "--method", help="dsnet (DS-Net / 4D-DS-Net) or most (detect → member stages)."
+    ),
+    stage: str = typer.Option("all", help="semantic | offset | shift | all (most: detect | member | all)"),
+    scans: int = typer.Option(
+        None,
+        help="Scans per 4D volume (default 1 = single scan); most: current + k-1 past scans (default 3).",
+    ),
     epochs: str = typer.Option("10", help="Epochs per stage: N, or e.g. 'semantic=20,offset=5'."),
     device: str = typer.Option("cpu", help="cpu | cuda"),
     resume: bool = typer.Option(False, "--resume", help="Continue the checkpoint in --out."),
@@ -35,7 +53,8 @@ def train(
         None,
         "--init-from",
         help="Fine-tune: start --out from this checkpoint's weights and architecture (e.g. a 3D model "
-        "fine-tuned on --scans 2 volumes with --epochs semantic=0,offset=2,shift=2).",
+        "fine-tuned on --scans 2 volumes with --epochs semantic=0,offset=2,shift=2); most: a DS-Net "
+        "checkpoint whose backbone and semantic head start the MOST network.",
     ),
     preset: str = typer.Option(
         "tiny", help="Model preset: tiny | small | paper | reference | cylinder3d (the released shapes)."
@@ -72,7 +91,28 @@ def train(
     ),
     pooling: str = typer.Option("mean", "--pooling", help="Equivariant: invariant pooling, mean or max."),
 ) -> None:
-    """Train DS-Net (semantic → instance head → shifting) and write a checkpoint with a model card."""
+    """Train DS-Net (semantic → instance head → shifting) or MOST (``--method most``: detection,
+    segmentation and velocity → PointSegMLP) and write a checkpoint with a model card."""
+    if method not in ("dsnet", "most"):
+        raise typer.BadParameter(f"--method must be dsnet or most, not {method!r}")
+    if method == "most":
+        from flows.commands.train_most import train_most
+
+        refused = {
+            "--freeze-backbone": freeze_backbone,
+            "--holdout": holdout != 0.0,
+            "--patience": patience != 0,
+            "--amp": amp != "off",
+            "--equivariant": equivariant != 1,
+            "--pooling": pooling != "mean",
+            "--batch-size": batch_size != 1,
+            "--schedule": schedule != "cosine",
+        }
+        return train_most(
+            data, out, stage, scans, epochs, device, resume, init_from, preset, grid, sequences, val_data,
+            val_sequences, lr, seed, augment, threads, refused,
+        )  # fmt: skip
+    scans = scans or 1
     import logging
     from dataclasses import replace
 
@@ -115,12 +155,7 @@ def train(
             patience=patience,
             amp=amp,
         )
-        model_config = get_preset(preset)
-        if grid:
-            cells = tuple(int(v) for v in grid.split(",") if v.strip().isdigit())
-            if len(cells) != 3:
-                raise typer.BadParameter(f"--grid wants three cell counts 'ρ,φ,z', got '{grid}'")
-            model_config = replace(model_config, grid=replace(model_config.grid, size=cells))
+        model_config = with_grid(get_preset(preset), grid)
         if equivariant != 1 or pooling != "mean":
             model_config = replace(model_config, equivariant=equivariant, pooling=pooling)
         trainer = Trainer(

@@ -1,0 +1,313 @@
+"""The labelling methods side by side on the same held-out logs: DS-Net (k = 1) + track, 4D-DS-Net
+(k = 2..4) + stitch, MOST (k = 1 and accumulated) + track.
+
+Every row labels the log into its own run store through the real stages (the plain runner: the
+pipeline of ``dsnet label --method M``, built by :class:`flows.request.LabelRequest` from the same
+settings, without Prefect), in its own process so that its peak RSS is its own; the parent scores
+each store's final labels against the ground truth (:class:`PanopticEvaluator`, official and
+corrected mode) and counts identity switches along ground-truth tubes.
+
+Columns: PQ, PQ^Th, PQ^St, mIoU, LSTQ, S_assoc (official mode), LSTQ (corrected: classes absent
+from the ground truth not counted), id switches, seconds per frame of each stage (manifest wall
+times; one torch thread), peak RSS of the row's process.
+
+Default data: held-out synthetic sequences (seed 303 from sequence 60, hdl64: the bundled models
+were trained on seed 101 sequences 0–15 and validated on seed 202 sequences 50–51).
+
+Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_methods.py --out DIR [--rows KEY,...]
+[--data LOG --sequences 00,01] [--frames 20] [--checkpoint-most CKPT]``; ``--rows list`` prints
+the rows. Stores under ``DIR/<row>`` are kept (``dsnet dashboard`` takes several roots); a row
+whose store is current is not recomputed (``--force`` recomputes). Writes ``DIR/bench_methods.json``
+and ``DIR/bench_methods.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+@dataclass(frozen=True)
+class Row:
+    """One labelling configuration: ``dsnet label --method METHOD --scans SCANS [settings]``."""
+
+    title: str
+    method: str
+    scans: int
+    options: dict[str, Any] = field(default_factory=dict)  # the method's options (temporal)
+    settings: dict[str, Any] = field(default_factory=dict)  # stage_settings keywords
+    stages: dict[str, dict[str, Any]] = field(default_factory=dict)  # extra per-stage overrides
+
+
+ROWS: dict[str, Row] = {
+    "dsnet-k1-track": Row("DS-Net k=1 + track", "dsnet", 1, {"temporal": "track"}),
+    "dsnet-k2-stitch": Row("4D-DS-Net k=2 + stitch", "dsnet", 2, {"temporal": "stitch"}),
+    "dsnet-k3-stitch": Row("4D-DS-Net k=3 + stitch", "dsnet", 3, {"temporal": "stitch"}),
+    "dsnet-k4-stitch": Row("4D-DS-Net k=4 + stitch", "dsnet", 4, {"temporal": "stitch"}),
+    "most-k1-track": Row("MOST k=1 + track", "most", 1),
+    "most-k3-track": Row("MOST k=3 + track", "most", 3),
+    "most-k3-distance": Row(
+        "MOST k=3 + track, distance memberships", "most", 3, stages={"most": {"rule": "distance"}}
+    ),
+}
+DEFAULT_ROWS = (
+    "dsnet-k1-track",
+    "dsnet-k2-stitch",
+    "dsnet-k3-stitch",
+    "dsnet-k4-stitch",
+    "most-k1-track",
+    "most-k3-track",
+)
+
+
+def make_log(root: Path, sequences: int, frames: int, seed: int, first: int, sensor: str) -> None:
+    """Generate the held-out synthetic log at ``root`` unless the same one is already there."""
+    from dsnet_core.synth import generate_log
+
+    stamp = root / "bench_log.json"
+    want = {"sequences": sequences, "frames": frames, "seed": seed, "first_sequence": first, "sensor": sensor}
+    if stamp.exists() and json.loads(stamp.read_text()) == want:
+        return
+    generate_log(root, sequences=sequences, frames=frames, seed=seed, sensor=sensor, first_sequence=first,
+                 overwrite=True)  # fmt: skip
+    stamp.write_text(json.dumps(want) + "\n")
+
+
+def request_of(row: Row, data: Path, store: Path, seqs: list[str], checkpoints: dict[str, str | None]):
+    """The :class:`~flows.request.LabelRequest` ``dsnet label`` would build for ``row``."""
+    from flows.request import LabelRequest, stage_settings
+
+    settings = {"checkpoint": checkpoints.get(row.method), **row.settings}
+    stages = stage_settings(row.scans, method=row.method, **settings)
+    for name, over in row.stages.items():
+        stages[name] = {**stages.get(name, {}), **over}
+    return LabelRequest(
+        data=str(data),
+        root=str(store),
+        sequences=seqs,
+        method=row.method,
+        method_options=row.options,
+        stages=stages,
+    )
+
+
+def label_row(key: str, data: Path, store: Path, seqs: list[str], checkpoints: dict, force: bool) -> dict:
+    """Run every stage but ``score`` of the row's pipeline (this process); stage seconds and peak RSS."""
+    import torch
+
+    from storage.run import RunStore
+    from tasks.runner import run_stage_plain
+
+    torch.set_num_threads(1)
+    request = request_of(ROWS[key], data, store, seqs, checkpoints)
+    pipeline = request.pipeline()
+    run = {
+        **pipeline.record(),
+        "data": str(data),
+        "format": "auto",
+        "sequences": seqs,
+        "stages": request.stage_configs(pipeline),
+        "options": {"block_size": 25},
+    }
+    rs = RunStore(store)
+    rs.write_run_config("bench", run)
+    seconds: dict[str, float] = {}
+    for seq in seqs:
+        for stage in pipeline.names():
+            if stage == "score":
+                continue
+            m = run_stage_plain(rs, pipeline, seq, stage, run, "bench", force=force)
+            seconds[stage] = seconds.get(stage, 0.0) + float(m.timings.get("wall_s", 0.0))
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"stages": seconds, "peak_rss_mb": peak, "labels": pipeline.labels}
+
+
+class Scores:
+    """Official- and corrected-mode evaluators and identity switches over a row's frames."""
+
+    def __init__(self, label_map) -> None:
+        from dsnet_core.metrics import PanopticEvaluator
+        from dsnet_core.metrics.switches import SwitchCounter
+
+        self.evals = {
+            m: PanopticEvaluator(label_map, mode=m, keep_rows=False) for m in ("official", "corrected")
+        }
+        self.switches = SwitchCounter(label_map)
+
+    def add(self, seq: str, frame: str, gt: np.ndarray, pred: np.ndarray) -> None:
+        for ev in self.evals.values():
+            ev.add(gt, pred, frame=frame, sequence=seq)
+        self.switches.add(gt, pred, sequence=seq)
+
+    def summary(self) -> dict:
+        o, c = self.evals["official"].result(), self.evals["corrected"].result()
+        p = o.panoptic
+        return {
+            "pq": p.pq,
+            "pq_things": p.pq_things,
+            "pq_stuff": p.pq_stuff,
+            "miou": p.miou,
+            "lstq": o.lstq.lstq,
+            "s_assoc": o.lstq.s_assoc,
+            "lstq_corrected": c.lstq.lstq,
+            "pq_things_corrected": c.panoptic.pq_things,
+            "id_switches": self.switches.switches,
+        }
+
+
+def score_row(store: Path, reader, seqs: list[str], label_map) -> dict:
+    """Scores of a row's stored final labels (its method's labels stage)."""
+    from storage.run import RunStore
+    from tasks.methods import run_pipeline
+
+    rs = RunStore(store)
+    pipeline = run_pipeline(rs.read_run_config())
+    scores = Scores(label_map)
+    for seq in seqs:
+        labels = rs.arrays(seq, pipeline[pipeline.labels].contract)
+        for ref in reader.frames(seq):
+            scores.add(seq, ref.frame_id, reader.labels(ref), labels.read_item(ref.index)["label"])
+    return scores.summary()
+
+
+def markdown(results: dict[str, dict], meta: dict) -> str:
+    stages = sorted({s for r in results.values() for s in r["s_per_frame"]}, key=STAGE_ORDER.index)
+    head = ["row", "PQ", "PQ^Th", "PQ^St", "mIoU", "LSTQ", "S_assoc", "LSTQ corr.", "id sw.", "s/frame"]
+    lines = [
+        "# Methods side by side",
+        "",
+        f"{meta['frames']} frames of {meta['data']} ({', '.join(meta['sequences'])}); checkpoints: "
+        + ", ".join(f"{m} {c or 'bundled'}" for m, c in meta["checkpoints"].items()),
+        "",
+        "| " + " | ".join([*head, *(f"{s} s/f" for s in stages), "peak RSS MB"]) + " |",
+        "|" + "---|" * (len(head) + len(stages) + 1),
+    ]
+    for key, r in results.items():
+        s = r["scores"]
+        cells = [ROWS[key].title] + [
+            f"{s[k]:.3f}" for k in ("pq", "pq_things", "pq_stuff", "miou", "lstq", "s_assoc")
+        ]
+        cells += [
+            f"{s['lstq_corrected']:.3f}",
+            str(s["id_switches"]),
+            f"{sum(r['s_per_frame'].values()):.2f}",
+        ]
+        cells += [f"{r['s_per_frame'][st]:.3f}" if st in r["s_per_frame"] else "" for st in stages]
+        cells.append(f"{r['peak_rss_mb']:.0f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Official mode unless marked corr. (classes absent from the ground truth not counted); id sw.: "
+        "identity switches along ground-truth tubes; s/frame: the stages' manifest wall times (ingest "
+        "to the labels stage, one torch thread) per frame; peak RSS: the row's own process.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+STAGE_ORDER = ["ingest", "align", "prior", "dpls", "infer", "most", "shift", "fuse", "stitch", "track"]
+
+
+def _finite(x):
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    return None if isinstance(x, float) and not math.isfinite(x) else x
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, required=True, help="folder of the run stores and tables")
+    ap.add_argument("--rows", default=",".join(DEFAULT_ROWS), help="comma-separated row keys, or 'list'")
+    ap.add_argument("--data", type=Path, default=None, help="SemanticKITTI-layout log with labels and poses")
+    ap.add_argument("--sequences", default=None, help="with --data: names; else how many to generate (2)")
+    ap.add_argument("--frames", type=int, default=20, help="frames per generated sequence")
+    ap.add_argument("--sensor", default="hdl64")
+    ap.add_argument("--seed", type=int, default=303)
+    ap.add_argument("--first-sequence", type=int, default=60)
+    ap.add_argument("--checkpoint-dsnet", default=None, help="DS-Net checkpoint (default: the bundled ones)")
+    ap.add_argument("--checkpoint-most", default=None, help="MOST checkpoint (default: the bundled one)")
+    ap.add_argument("--force", action="store_true", help="recompute every stage")
+    ap.add_argument("--row", default=None, help=argparse.SUPPRESS)  # worker: label one row, print JSON
+    args = ap.parse_args()
+    if args.rows == "list":
+        for key, row in ROWS.items():
+            print(f"{key:24s} {row.title}")
+        return
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    checkpoints = {"dsnet": args.checkpoint_dsnet, "most": args.checkpoint_most}
+    checkpoints = {m: str(Path(c).resolve()) if c else None for m, c in checkpoints.items()}
+    if args.data is None:
+        data = args.out / "log"
+        if args.row is None:
+            make_log(data, int(args.sequences or 2), args.frames, args.seed, args.first_sequence, args.sensor)
+    else:
+        data = args.data
+    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from dsnet_core.labels import load_label_map
+
+    reader = SemanticKittiReader(data)
+    seqs = args.sequences.split(",") if (args.data and args.sequences) else reader.sequences()
+    if args.row is not None:
+        out = label_row(args.row, data, args.out / args.row, seqs, checkpoints, args.force)
+        print("ROW " + json.dumps(out))
+        return
+    keys = args.rows.split(",")
+    unknown = [k for k in keys if k not in ROWS]
+    if unknown:
+        raise SystemExit(f"unknown rows {unknown}; --rows list shows them")
+    label_map = load_label_map("semantic-kitti")
+    n_frames = sum(len(reader.frames(s)) for s in seqs)
+    results: dict[str, dict] = {}
+    for key in keys:
+        cmd = [sys.executable, __file__, "--out", str(args.out), "--row", key, "--data", str(data)]
+        cmd += ["--sequences", ",".join(seqs)]
+        for m, c in checkpoints.items():
+            if c:
+                cmd += [f"--checkpoint-{m}", c]
+        if args.force:
+            cmd.append("--force")
+        t0 = time.perf_counter()
+        res = subprocess.run(cmd, capture_output=True, text=True)
+        if res.returncode != 0:
+            raise SystemExit(f"row {key} failed:\n{res.stderr[-3000:]}")
+        line = [x for x in res.stdout.splitlines() if x.startswith("ROW ")][-1]
+        out = json.loads(line[4:])
+        results[key] = {
+            "title": ROWS[key].title,
+            "s_per_frame": {s: v / n_frames for s, v in out["stages"].items()},
+            "peak_rss_mb": out["peak_rss_mb"],
+            "scores": score_row(args.out / key, reader, seqs, label_map),
+        }
+        sc = results[key]["scores"]
+        print(
+            f"{ROWS[key].title}: PQ {sc['pq']:.3f} LSTQ {sc['lstq']:.3f} ({time.perf_counter() - t0:.0f} s)"
+        )
+    meta = {
+        "data": str(Path(data).resolve()),
+        "sequences": seqs,
+        "frames": n_frames,
+        "checkpoints": checkpoints,
+    }
+    (args.out / "bench_methods.json").write_text(
+        json.dumps(_finite({"meta": meta, "rows": results}), indent=2) + "\n"
+    )
+    md = markdown(results, meta)
+    (args.out / "bench_methods.md").write_text(md)
+    print()
+    print(md)
+
+
+if __name__ == "__main__":
+    main()

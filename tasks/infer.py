@@ -164,7 +164,7 @@ class InferStage(Stage):
                     "sem": res.sem.astype(np.uint8),
                     "probs": quantise_probs(res.probs),
                     "offsets": res.offsets.astype(np.float32),
-                    "features": res.features.astype(np.float16),
+                    "features": res.features.astype(np.float16, copy=False),
                 },
                 n_points=n,
                 counts={"volumes": 1, "points": n, "thing_points": int(thing[res.sem].sum())},

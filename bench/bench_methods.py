@@ -16,7 +16,8 @@ were trained on seed 101 sequences 0–15 and validated on seed 202 sequences 50
 
 Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_methods.py --out DIR [--rows KEY,...]
 [--data LOG --sequences 00,01] [--frames 20] [--checkpoint-most CKPT]``; ``--rows list`` prints
-the rows. Stores under ``DIR/<row>`` are kept (``dsnet dashboard`` takes several roots); a row
+the rows; ``--yaw DEG`` labels a copy of the log turned by a global yaw (rotation robustness:
+``DIR/yawDEG/``). Stores under ``DIR/<row>`` are kept (``dsnet dashboard`` takes several roots); a row
 whose store is current is not recomputed (``--force`` recomputes). Writes ``DIR/bench_methods.json``
 and ``DIR/bench_methods.md``.
 """
@@ -59,6 +60,9 @@ ROWS: dict[str, Row] = {
     "dsnet-k4-stitch": Row("4D-DS-Net k=4 + stitch", "dsnet", 4, {"temporal": "stitch"}),
     "most-k1-track": Row("MOST k=1 + track", "most", 1),
     "most-k3-track": Row("MOST k=3 + track", "most", 3),
+    "dsnet-k1-tta2": Row("DS-Net k=1 + track, --tta 2", "dsnet", 1, {"temporal": "track"}, {"tta": 2}),
+    "dsnet-k1-tta4": Row("DS-Net k=1 + track, --tta 4", "dsnet", 1, {"temporal": "track"}, {"tta": 4}),
+    "dsnet-k1-tta8": Row("DS-Net k=1 + track, --tta 8", "dsnet", 1, {"temporal": "track"}, {"tta": 8}),
     "most-k3-distance": Row(
         "MOST k=3 + track, distance memberships", "most", 3, stages={"most": {"rule": "distance"}}
     ),
@@ -238,6 +242,9 @@ def main() -> None:
     ap.add_argument("--first-sequence", type=int, default=60)
     ap.add_argument("--checkpoint-dsnet", default=None, help="DS-Net checkpoint (default: the bundled ones)")
     ap.add_argument("--checkpoint-most", default=None, help="MOST checkpoint (default: the bundled one)")
+    ap.add_argument(
+        "--yaw", type=float, default=None, help="label a copy of the log turned by this yaw (deg)"
+    )
     ap.add_argument("--force", action="store_true", help="recompute every stage")
     ap.add_argument("--row", default=None, help=argparse.SUPPRESS)  # worker: label one row, print JSON
     args = ap.parse_args()
@@ -254,6 +261,12 @@ def main() -> None:
             make_log(data, int(args.sequences or 2), args.frames, args.seed, args.first_sequence, args.sensor)
     else:
         data = args.data
+    if args.yaw is not None and args.row is None:
+        from _yaw import rotate_log
+
+        data = rotate_log(data, args.out / f"log-yaw{args.yaw:g}", args.yaw)
+        args.out = args.out / f"yaw{args.yaw:g}"
+        args.out.mkdir(parents=True, exist_ok=True)
     from dsnet_core.io.semantickitti import SemanticKittiReader
     from dsnet_core.labels import load_label_map
 

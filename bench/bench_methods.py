@@ -109,7 +109,7 @@ def request_of(row: Row, data: Path, store: Path, seqs: list[str], checkpoints: 
 
 
 def label_row(key: str, data: Path, store: Path, seqs: list[str], checkpoints: dict, force: bool) -> dict:
-    """Run every stage but ``score`` of the row's pipeline (this process); stage seconds and peak RSS."""
+    """Run every stage of the row's pipeline (this process); stage seconds (but score's) and peak RSS."""
     import torch
 
     from storage.run import RunStore
@@ -131,10 +131,12 @@ def label_row(key: str, data: Path, store: Path, seqs: list[str], checkpoints: d
     seconds: dict[str, float] = {}
     for seq in seqs:
         for stage in pipeline.names():
-            if stage == "score":
-                continue
             m = run_stage_plain(rs, pipeline, seq, stage, run, "bench", force=force)
-            seconds[stage] = seconds.get(stage, 0.0) + float(m.timings.get("wall_s", 0.0))
+            if stage != "score":  # scored so that `dsnet dashboard` can show the stores side by side
+                seconds[stage] = seconds.get(stage, 0.0) + float(m.timings.get("wall_s", 0.0))
+    from flows.report.merge import write_report
+
+    write_report(rs, pipeline)  # the report tables `dsnet dashboard` reads
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return {"stages": seconds, "peak_rss_mb": peak, "labels": pipeline.labels}
 

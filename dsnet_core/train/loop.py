@@ -31,7 +31,7 @@ from dsnet_core.model.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from dsnet_core.model.equivariant import equivariant_offset_loss
+from dsnet_core.model.equivariant import equivariant_offset_loss, lift_model
 from dsnet_core.model.losses import (
     class_weights,
     instance_centres,
@@ -151,6 +151,8 @@ class Trainer:
         init_from: fine-tune: start a new checkpoint in ``out`` from this checkpoint's weights (its
             architecture replaces ``model_config``; the new card starts with no epochs and records
             where it came from). Ignored when resuming an existing ``out``.
+        lift: ``(n, pooling)``: lift the plain ``init_from`` model to C_n first
+            (:func:`~dsnet_core.model.equivariant.lift_model`).
     """
 
     def __init__(
@@ -165,6 +167,7 @@ class Trainer:
         config: TrainConfig,
         resume: bool = False,
         init_from: str | Path | None = None,
+        lift: tuple[int, str] | None = None,
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), config, label_map
         self.stages = config.stages()
@@ -196,6 +199,8 @@ class Trainer:
             source = None
             if init_from is not None:
                 self.model, parent = load_checkpoint(init_from, self.device, expect_label_map=label_map)
+                if lift is not None:  # a plain model's weights shared by the n rotated copies
+                    self.model = lift_model(self.model, *lift)
                 model_config = self.model.config
                 source = {
                     "path": str(Path(init_from).resolve()),

@@ -87,7 +87,8 @@ def train(
         1,
         "--equivariant",
         min=1,
-        help="Eq-4D: a C_n yaw-equivariant network (n must divide the azimuth cells).",
+        help="Eq-4D: a C_n yaw-equivariant network (n must divide the azimuth cells); with --init-from a "
+        "plain model, its weights lifted to C_n (shared by the n rotated copies) and fine-tuned.",
     ),
     pooling: str = typer.Option("mean", "--pooling", help="Equivariant: invariant pooling, mean or max."),
 ) -> None:
@@ -158,8 +159,9 @@ def train(
         model_config = with_grid(get_preset(preset), grid)
         if equivariant != 1 or pooling != "mean":
             model_config = replace(model_config, equivariant=equivariant, pooling=pooling)
+        lift = (equivariant, pooling) if init_from is not None and equivariant != 1 else None
         trainer = Trainer(
-            out, model_config, reader, seqs, val_reader, vseqs, label_map, cfg, resume, init_from
+            out, model_config, reader, seqs, val_reader, vseqs, label_map, cfg, resume, init_from, lift
         )
         with Progress(
             TextColumn("{task.description}"),

@@ -168,3 +168,29 @@ def test_trainable_end_to_end():
     loss.backward()
     missing = [n for n, p in net.named_parameters() if p.grad is None or not torch.isfinite(p.grad).all()]
     assert missing == []
+
+
+def test_a_lifted_plain_model_shares_its_weights_and_is_equivariant():
+    """``lift_model``: the plain network's weights on every rotated copy (its semantics become their
+    mean), a fresh anchor scorer, and the lifted network is equivariant as one trained lifted."""
+    from dsnet_core.model.equivariant import lift_model
+
+    plain = _net(1)
+    lifted = lift_model(plain, 4).eval()
+    assert lifted.config.equivariant == 4
+    own = lifted.state_dict()
+    for k, v in plain.state_dict().items():
+        assert torch.equal(own[k], v), k
+    assert {k for k in own if k not in plain.state_dict()} == {k for k in own if k.startswith("anchor_head.")}
+    pts = away_from_cell_boundaries(1200, seed=4).astype(np.float64)
+    with torch.inference_mode():
+        ref = lifted([torch.from_numpy(pts)])
+        rot = lifted([torch.from_numpy(rotate64(pts, math.pi / 2, dtype=np.float64))])
+        copies = [
+            plain([torch.from_numpy(rotate64(pts, -math.pi / 2 * j, dtype=np.float64))]) for j in range(4)
+        ]
+    assert torch.equal(rot.logits.argmax(1), ref.logits.argmax(1))
+    mean = torch.stack([c.logits for c in copies]).mean(0)  # invariant pooling = the rotations' mean
+    torch.testing.assert_close(ref.logits, mean, atol=1e-4, rtol=0)
+    with pytest.raises(ConfigError, match="already C_4"):
+        lift_model(lifted, 2)

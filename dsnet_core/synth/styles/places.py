@@ -199,30 +199,32 @@ class ParkingLot(StreetStyle):
     def lot_ground(self, rng: np.random.Generator, lot: Lot) -> int:
         return PARKING
 
-    def _in_cross(self, s: np.ndarray | float) -> np.ndarray | bool:
-        c = np.asarray(self.cross)
-        return (
-            (np.abs(np.asarray(s)[..., None] - c - 3.5) < 3.5).any(axis=-1)
-            if c.size
-            else np.zeros_like(s, bool)
-        )
+    def _in_cross(self, s: np.ndarray | float) -> np.ndarray:
+        """Whether arc lengths ``s`` lie on a 7 m cross aisle (no bays there)."""
+        s = np.asarray(s)
+        out = np.zeros(s.shape, bool)
+        for c in self.cross:
+            out |= np.abs(s - c - 3.5) < 3.5
+        return out
 
     def paint(self, p: Painting) -> None:
         s, d = p.canvas.s, p.canvas.d
         ad = np.abs(d)
         cross = self._in_cross(s)
+        bay_line = np.mod(s, self.bay_w) < 0.15
         for side, sign in enumerate(SIDES):
             on_side = d * sign > 0
-            p.raised[on_side & (ad < self.edge[side])] = False
-            for d0, d1, kind in self.rows[side]:
-                band = on_side & (ad >= d0) & (ad < d1) & ~cross
-                if kind == "island":
-                    p.put(band, TERRAIN, True)
-                elif kind == "bays":
-                    lines = band & (
-                        (np.mod(s, self.bay_w) < 0.15) | (np.abs(ad - (d0 + d1) / 2) > self.BAY / 2 - 0.15)
-                    )
-                    p.put(lines, LANE_MARKING, False)
+            rows = self.rows[side]
+            bounds = np.array([r[1] for r in rows])
+            row = np.searchsorted(bounds, ad, side="right")  # index of the band each cell lies in
+            inside = on_side & (ad >= rows[0][0]) & (row < len(rows))
+            p.raised[inside] = False
+            codes = {"bays": 0, "aisle": 1, "island": 2}
+            kinds = np.array([codes[r[2]] for r in rows] + [3], np.int8)[row]
+            p.put(inside & ~cross & (kinds == 2), TERRAIN, True)
+            centre = np.array([(r[0] + r[1]) / 2 for r in rows] + [0.0], np.float32)[row]
+            edge_line = np.abs(ad - centre) > self.BAY / 2 - 0.15
+            p.put(inside & ~cross & (kinds == 0) & (bay_line | edge_line), LANE_MARKING, False)
             edge = self.edge[side]
             p.put(on_side & (ad >= edge) & (ad < edge + 2.5), SIDEWALK, True)
             p.put(on_side & (ad >= edge + 2.5), 49 if side == self.store_side else TERRAIN, True)
@@ -247,7 +249,7 @@ class ParkingLot(StreetStyle):
                 if kind == "island":
                     s = ctx.s_lo + rng.uniform(0.0, 8.0)
                     while s < ctx.s_hi:
-                        if not self._in_cross(s):
+                        if not self._in_cross(s).any():
                             if rng.random() < 0.2:
                                 h = rng.uniform(9.0, 13.0)
                                 light = [
@@ -261,7 +263,7 @@ class ParkingLot(StreetStyle):
                         s += rng.uniform(6.0, 10.0)
                     continue
                 for s in np.arange(ctx.s_lo, ctx.s_hi, self.bay_w) + self.bay_w / 2:
-                    if self._in_cross(s) or rng.random() > fill:
+                    if self._in_cross(s).any() or rng.random() > fill:
                         continue
                     cls = [CAR, OTHER_VEHICLE, MOTORCYCLE][rng.choice(3, p=[0.86, 0.1, 0.04])]
                     nose = np.pi / 2 + rng.normal(0, 0.04) + rng.choice([0.0, np.pi])

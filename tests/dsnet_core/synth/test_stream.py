@@ -43,7 +43,7 @@ def test_restricted_styles_hold_out_the_rest():
 def test_prefetching_workers_match_the_serial_stream():
     kwargs = {"frames": 1, "sensors": ["vlp16"], "start": 5, "count": 2}
     serial = list(SynthStream(7, **kwargs))
-    parallel = list(SynthStream(7, workers=2, **kwargs))
+    parallel = list(SynthStream(7, workers=1, prefetch=2, **kwargs))
     assert [s.step for s in parallel] == [5, 6]
     assert all(_same(a, b) for a, b in zip(serial, parallel, strict=True))
 

@@ -12,8 +12,10 @@ from dsnet_core.errors import ConfigError
 from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.scene import Scene, build_scene
 from dsnet_core.synth.styles.base import StreetStyle
+from dsnet_core.synth.styles.country import Country
 from dsnet_core.synth.styles.places import Junction, ParkingLot
-from dsnet_core.synth.styles.streets import Arterial, Country, Downtown, Residential
+from dsnet_core.synth.styles.residential import Residential
+from dsnet_core.synth.styles.urban import Arterial, Downtown
 
 STYLES: dict[str, type[StreetStyle] | None] = {
     "classic": None,

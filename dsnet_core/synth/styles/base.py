@@ -1,7 +1,8 @@
-"""What every street style shares: a cross-section (carriageway, kerbside strip, verge, sidewalk),
-the painted raster ground under a graded, crowned surface, traffic lanes, and lifting every object
-onto the ground. A style is a :class:`StreetStyle` subclass that sets its ranges and overrides a few
-hooks (``section``, ``kerbside``, ``lots``, ``paint``, ``populate``)."""
+"""What every street style shares: the :class:`StreetStyle` build (road, cross-section, painted
+raster ground under a graded, crowned surface, traffic, stuff, everything lifted onto the ground).
+A style subclasses it, sets its ranges and overrides a few hooks (``section``, ``kerbside``,
+``lots``, ``paint``, ``populate``, ``placer``); see :mod:`.section`, :mod:`.painting` and
+:mod:`.populate` for the shared pieces."""
 
 from __future__ import annotations
 
@@ -12,7 +13,6 @@ import numpy as np
 from dsnet_core.synth import shapes, templates
 from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.ground import (
-    Canvas,
     RasterGround,
     finish,
     grade_profile,
@@ -20,8 +20,6 @@ from dsnet_core.synth.ground import (
     street_height,
 )
 from dsnet_core.synth.layout import (
-    SIDES,
-    SIDEWALK_BAND,
     TRUNK,
     VEGETATION,
     Lot,
@@ -30,19 +28,17 @@ from dsnet_core.synth.layout import (
     StuffPlacer,
     _runs,
 )
-from dsnet_core.synth.primitives import ELLIPSOID, PrimitiveSet
+from dsnet_core.synth.primitives import PrimitiveSet
 from dsnet_core.synth.road import (
-    DASH_ON,
-    DASH_PERIOD,
-    LANE_MARKING,
     PARKING,
-    ROAD,
     SIDEWALK,
     TERRAIN,
     GroundLayout,
     Road,
 )
 from dsnet_core.synth.scene import Scene
+from dsnet_core.synth.styles.painting import Painting, lift, paint_section
+from dsnet_core.synth.styles.section import Section
 from dsnet_core.synth.traffic import (
     BICYCLE,
     BICYCLIST,
@@ -67,46 +63,6 @@ STYLE_SHAPES = {
     BICYCLIST: templates.bicyclist,
     MOTORCYCLIST: templates.motorcyclist,
 }
-
-
-@dataclass(frozen=True)
-class Section:
-    """A street's cross-section, per side (0 left, 1 right), widths in metres.
-
-    Attributes:
-        lanes: traffic lanes per side.
-        lane_width: metres.
-        median: full width of a raised central median (0: none).
-        median_class: raw class of the median (terrain: grass, sidewalk: paved island).
-        bike: bike-lane width per side behind a solid line (0: none).
-        widths: ``(2, 3)`` kerbside strip, verge (grass), sidewalk widths per side.
-        road_class: raw class of the carriageway (road; parking in a parking lot).
-        markings: paint lane markings.
-        flush_kerbside: the kerbside strip is level with the road whatever its class (gravel).
-    """
-
-    lanes: int
-    lane_width: float
-    median: float = 0.0
-    median_class: int = TERRAIN
-    bike: float = 0.0
-    widths: tuple[tuple[float, float, float], tuple[float, float, float]] = ((0, 0, 2.0), (0, 0, 2.0))
-    road_class: int = ROAD
-    markings: bool = True
-    flush_kerbside: bool = False
-
-    @property
-    def carriageway(self) -> float:
-        """|d| of the kerb line (metres)."""
-        return self.median / 2 + self.lanes * self.lane_width + self.bike
-
-    def edges(self, side: int) -> np.ndarray:
-        """``(4,)`` |d| of road edge, kerbside end, verge end, sidewalk end."""
-        return np.cumsum([self.carriageway, *self.widths[side]])
-
-    def lane_centres(self) -> list[float]:
-        """|d| of the centre of each lane, inner first."""
-        return [self.median / 2 + (m - 0.5) * self.lane_width for m in range(1, self.lanes + 1)]
 
 
 @dataclass
@@ -201,6 +157,8 @@ class StreetStyle:
 
     def populate(self, ctx: Ctx) -> None:
         """Traffic, parked things and stuff; sets ``ctx.ego_d``."""
+        from dsnet_core.synth.styles.populate import default_populate
+
         default_populate(self, ctx)
 
     def placer(self, ctx: Ctx) -> StylePlacer:
@@ -282,160 +240,3 @@ class StreetStyle:
                     (side, s_lo + a, s_lo + b) for a, b in _runs(classes[side, 0] == PARKING) if b - a >= 3
                 ]
         return Street(lay, lots, parking)
-
-
-@dataclass
-class Painting:
-    """The rasters a style paints on, with the canvas coordinates."""
-
-    rng: np.random.Generator
-    canvas: Canvas
-    street: Street
-    section: Section
-    cls: np.ndarray
-    raised: np.ndarray
-
-    def put(self, mask: np.ndarray, cls: int, raised: bool) -> None:
-        self.cls[mask] = cls
-        self.raised[mask] = raised
-
-
-def paint_section(canvas: Canvas, street: Street, sec: Section) -> tuple[np.ndarray, np.ndarray]:
-    """Paint the cross-section over the canvas: ``(ny, nx) uint8`` classes and ``bool`` raised."""
-    lay = street.layout
-    s, d = canvas.s, canvas.d
-    ad = np.abs(d)
-    k = np.clip(((s - lay.s0) / lay.ds).astype(np.int64), 0, lay.edges.shape[2] - 1)
-    cls = np.empty(s.shape, np.uint8)
-    raised = np.ones(s.shape, bool)
-    for side, mask in ((0, d >= 0), (1, d < 0)):
-        e = lay.edges[side, :, 0]
-        beyond = lay.classes[side, 1][k]
-        cls[mask] = beyond[mask]
-        cls[mask & (ad < e[3])] = SIDEWALK
-        cls[mask & (ad < e[2])] = TERRAIN
-        strip = mask & (ad < e[1])
-        kerb_cls = lay.classes[side, 0][k][strip]
-        cls[strip] = kerb_cls
-        raised[strip] = (kerb_cls != PARKING) & (kerb_cls != ROAD) & (not sec.flush_kerbside)
-        road = mask & (ad < e[0])
-        cls[road] = sec.road_class
-        raised[road] = False
-    if sec.median > 0:
-        med = ad < sec.median / 2
-        cls[med] = sec.median_class
-        raised[med] = True
-    if sec.markings:
-        hw = 0.1
-        dashed = np.mod(s, DASH_PERIOD) < DASH_ON
-        inner, lw = sec.median / 2, sec.lane_width
-        marks = np.zeros(s.shape, bool)
-        if sec.median == 0:
-            marks |= (ad < hw) & (dashed | (sec.lanes > 1))
-        else:
-            marks |= np.abs(ad - inner - 0.3) < hw
-        for m in range(1, sec.lanes):
-            marks |= (np.abs(ad - inner - m * lw) < hw) & dashed
-        marks |= np.abs(ad - inner - sec.lanes * lw + (0.0 if sec.bike > 0 else 0.3)) < hw
-        marks &= ad < sec.carriageway
-        cls[marks] = LANE_MARKING
-    return cls, raised
-
-
-def lift(p: PrimitiveSet, ground: RasterGround) -> PrimitiveSet:
-    """Stand every primitive on the ground: things move up by the ground height under their
-    instance's centre (parts stay together), stuff by the height under each primitive; stuff boxes and
-    cylinders standing at z = 0 reach below the ground so slopes and kerbs leave no gap under them."""
-    if not len(p):
-        return p
-    center, half = p.center.copy(), p.half.copy()
-    thing = p.instance > 0
-    if thing.any():
-        _, inv = np.unique(p.instance[thing], return_inverse=True)
-        count = np.bincount(inv)
-        mx = np.bincount(inv, center[thing, 0]) / count
-        my = np.bincount(inv, center[thing, 1]) / count
-        center[thing, 2] += ground.height_at(mx, my)[inv]
-    stuff = ~thing
-    center[stuff, 2] += ground.height_at(center[stuff, 0], center[stuff, 1])
-    sink = stuff & (p.center[:, 2] - p.half[:, 2] < 0.05) & (p.kind != ELLIPSOID)
-    extra = 0.3 + ground.grade * np.hypot(half[:, 0], half[:, 1])
-    center[sink, 2] -= extra[sink] / 2
-    half[sink, 2] += extra[sink] / 2
-    return PrimitiveSet(p.kind, center, p.yaw, half, p.semantic, p.instance, p.reflectivity)
-
-
-def lanes_of(style: StreetStyle, ctx: Ctx) -> tuple[dict[float, float], float]:
-    """Traffic lanes ``{d: signed speed}`` (right-hand traffic) and the ego's lane offset."""
-    rng, sec = ctx.rng, ctx.section
-    centres = sec.lane_centres()
-    ego_lane = int(rng.integers(0, len(centres)))
-    ego_d = -centres[ego_lane]
-    lo, hi = 0.6 * style.speed[0], 1.3 * style.speed[1]
-    roads = {
-        -c: ctx.ego_speed if k == ego_lane else float(rng.uniform(lo, hi)) for k, c in enumerate(centres)
-    }
-    roads.update({c: -float(rng.uniform(lo, hi)) for c in centres})
-    return roads, ego_d
-
-
-def sidewalk_lanes(ctx: Ctx) -> dict[tuple[float, int], tuple[float, float, float]]:
-    """Walking lanes ``(sign, k) -> (d, speed, share in pairs)`` on sidewalks at least 1.2 m wide."""
-    rng, lay = ctx.rng, ctx.street.layout
-    walks = {}
-    for side, sign in enumerate(SIDES):
-        curb, outer = lay.edge(side, 2, 0.0), lay.edge(side, 3, 0.0) - SIDEWALK_BAND
-        if outer - curb < 0.3:
-            continue
-        pairs = 0.35 if outer - curb >= 2.4 else 0.0
-        for k, (frac, direction) in enumerate(((0.3, 1.0), (0.75, -1.0))):
-            walks[sign, k] = (
-                sign * (curb + frac * (outer - curb)),
-                direction * rng.uniform(0.8, 1.6),
-                pairs * (k == 0),
-            )
-    return walks
-
-
-def default_populate(style: StreetStyle, ctx: Ctx, walks: bool = True) -> None:
-    """Lane traffic (vehicles, bicyclists on bike lanes, people on sidewalks), a car ahead of the ego,
-    parked vehicles, sidewalk things and the style's stuff."""
-    rng, traffic, sec = ctx.rng, ctx.traffic, ctx.section
-    roads, ctx.ego_d = lanes_of(style, ctx)
-    traffic.reserve(ctx.ego_d, -8.0 - ctx.slack, 8.0 + ctx.slack)
-    traffic.drive(CAR, rng.uniform(18.0, 30.0), ctx.ego_d, ctx.ego_speed)
-    opposite = min(d for d in roads if d > 0)
-    traffic.drive(CAR, rng.uniform(10.0, 40.0), opposite, roads[opposite])
-    walk_lanes = sidewalk_lanes(ctx) if walks else {}
-    if (1.0, 1) in walk_lanes:
-        d, speed, _ = walk_lanes[1.0, 1]
-        traffic.drive(PERSON, rng.uniform(5.0, 15.0), d, speed)
-    traffic.park_street(style.parked)
-    if walks and min(sec.widths[0][2], sec.widths[1][2]) >= 1.0:
-        traffic.sidewalk_things(ctx.s_lo, ctx.s_hi)
-    classes = [c for c, _ in style.vehicles]
-    probs = np.array([p for _, p in style.vehicles])
-    probs /= probs.sum()
-
-    def vehicle():
-        return classes[rng.choice(len(classes), p=probs)]
-
-    dense = 1.0 / max(ctx.config.traffic * style.traffic, 1e-3)
-    for d, speed in roads.items():
-        traffic.fill_lane(d, speed, *ctx.window(speed), (15.0 * dense, 90.0 * dense), vehicle)
-    if sec.bike > 0:
-        for sign in SIDES:
-            d, speed = sign * (sec.carriageway - sec.bike / 2), -sign * rng.uniform(3.5, 6.5)
-            traffic.fill_lane(d, speed, *ctx.window(speed), (30.0 * dense, 150.0 * dense), lambda: BICYCLIST)
-    walk = 1.0 / max(ctx.config.pedestrians * style.pedestrians, 1e-3)
-    for d, speed, pairs in walk_lanes.values():
-        traffic.fill_lane(d, speed, *ctx.window(speed), (6.0 * walk, 60.0 * walk), lambda: PERSON, pairs)
-    ctx.stuff.append(style.placer(ctx).run().build())
-
-
-def force_take(occ: Occupancy, s: float, d: float, length: float, width: float, yaw: float = 0.0) -> None:
-    """Mark a footprint as used whatever lies there (a cross road nothing may be placed on)."""
-    from dsnet_core.synth.layout import _corners
-
-    rect = (s, d, length / 2, width / 2, yaw)
-    occ.buckets.setdefault(int(s // 10.0), []).append((rect, _corners(rect)))

@@ -9,15 +9,8 @@ from dsnet_core.synth import shapes, templates
 from dsnet_core.synth.layout import BUILDING, FENCE, OTHER_OBJECT, POLE, SIDES, Lot
 from dsnet_core.synth.primitives import BOX, CYLINDER, Part
 from dsnet_core.synth.road import LANE_MARKING, PARKING, ROAD, SIDEWALK, TERRAIN
-from dsnet_core.synth.styles.base import (
-    Ctx,
-    Painting,
-    Section,
-    StreetStyle,
-    StylePlacer,
-    default_populate,
-    force_take,
-)
+from dsnet_core.synth.styles.base import Ctx, Painting, Section, StreetStyle, StylePlacer
+from dsnet_core.synth.styles.populate import default_populate, force_take
 from dsnet_core.synth.traffic import CAR, MOTORCYCLE, OTHER_VEHICLE, PERSON
 
 

@@ -12,11 +12,15 @@ Times are CPU times of this process (``time.process_time``, median of ``REPEATS`
 single-threaded, so this is the cost on one core and stays meaningful on a machine shared with other
 jobs; the wall-clock median is printed beside it.
 
-Run: ``.venv/bin/python bench/bench_synth.py``.
+Styles other than ``classic`` (``--styles``) are timed with each sensor's per-sequence draws, as
+``dsnet synth --style`` renders them; ``--sensors`` picks the LiDARs.
+
+Run: ``.venv/bin/python bench/bench_synth.py [--sensors hdl64,vlp16] [--styles classic,junction]``.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import tempfile
@@ -31,8 +35,11 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dsnet_core.io import kitti  # noqa: E402
-from dsnet_core.synth import SynthConfig, get_sensor, plan_sequence  # noqa: E402
+from dsnet_core.synth import SENSORS, SynthConfig, plan_sequence  # noqa: E402
+from dsnet_core.synth.log import child_seed, sequence_seed  # noqa: E402
 from dsnet_core.synth.render import Renderer  # noqa: E402
+from dsnet_core.synth.styles import STYLES  # noqa: E402
+from dsnet_core.synth.variation import choose_setup  # noqa: E402
 
 REPEATS = 10
 
@@ -48,9 +55,12 @@ def _median_ms(fn, repeats: int = REPEATS) -> tuple[float, float]:
     return 1000.0 * float(np.median(cpu)), 1000.0 * float(np.median(wall))
 
 
-def bench(sensor: str, tmp: Path) -> None:
-    spec = get_sensor(sensor)
-    plan = plan_sequence(0, 0, REPEATS, SynthConfig(sensor=sensor))
+def bench(sensor: str, style: str, tmp: Path) -> None:
+    setup = choose_setup(child_seed(sequence_seed(0, 0), 2), style, sensor)
+    spec = setup.spec
+    t0 = time.perf_counter()
+    plan = plan_sequence(0, 0, REPEATS, SynthConfig(sensor=sensor), setup)
+    plan_ms = 1000.0 * (time.perf_counter() - t0)
     t0 = time.perf_counter()
     renderer = Renderer(plan.scene, spec, plan.poses[:, :2, 3])
     setup_ms = 1000.0 * (time.perf_counter() - t0)
@@ -77,17 +87,23 @@ def bench(sensor: str, tmp: Path) -> None:
 
     plane_ms, _ = _median_ms(plane)
     print(
-        f"{sensor}: {spec.rays} rays, {scan.shape[0]} points | render {gen_ms:.1f} ms/scan CPU "
-        f"({gen_wall:.1f} ms wall) "
-        f"(scene raster setup {setup_ms:.0f} ms once per sequence) | read-back {read_ms:.2f} ms "
+        f"{style:>11} {sensor:>10}: {spec.rays} rays, {scan.shape[0]} points | "
+        f"render {gen_ms:.1f} ms/scan CPU ({gen_wall:.1f} ms wall) "
+        f"(world {plan_ms:.0f} ms + raster setup {setup_ms:.0f} ms once per sequence) | "
+        f"read-back {read_ms:.2f} ms "
         f"→ ×{gen_ms / read_ms:.0f} | numpy ground-plane pass {plane_ms:.2f} ms → ×{gen_ms / plane_ms:.1f}"
     )
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sensors", default=",".join(SENSORS), help="comma-separated LiDAR presets")
+    parser.add_argument("--styles", default="classic", help=f"comma-separated styles of {sorted(STYLES)}")
+    args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        for sensor in ("hdl64", "vlp32"):
-            bench(sensor, Path(tmp))
+        for style in args.styles.split(","):
+            for sensor in args.sensors.split(","):
+                bench(sensor, style, Path(tmp))
 
 
 if __name__ == "__main__":

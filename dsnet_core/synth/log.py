@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -15,8 +16,11 @@ from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.render import Renderer
 from dsnet_core.synth.scene import Scene, build_scene
 from dsnet_core.synth.sensor import get_sensor
+from dsnet_core.synth.styles import build_styled_scene, check_style
+from dsnet_core.synth.variation import SequenceSetup, apply_materials, check_sensor, choose_setup
 
 log = logging.getLogger(__name__)
+SETUP_FILE = "synth.json"  # per sequence: its style, sensor and draws (for held-out evaluations)
 
 # Velodyne→camera transform of KITTI odometry sequence 00 (re-orthonormalised).
 _KITTI_TR = np.array(
@@ -45,11 +49,13 @@ class SequencePlan:
         scene: the world.
         poses: ``(F, 4, 4) float64`` sensor → scene-world poses.
         times: ``(F,) float64`` seconds from the first frame.
+        setup: style, sensor and per-sequence draws (None: the legacy default of ``config.sensor``).
     """
 
     scene: Scene
     poses: np.ndarray
     times: np.ndarray
+    setup: SequenceSetup | None = None
 
 
 def sequence_seed(seed: int, index: int) -> np.random.SeedSequence:
@@ -57,23 +63,68 @@ def sequence_seed(seed: int, index: int) -> np.random.SeedSequence:
     return np.random.SeedSequence([int(seed), int(index)])
 
 
-def plan_sequence(seed: int, index: int, frames: int, config: SynthConfig | None = None) -> SequencePlan:
+def child_seed(ss: np.random.SeedSequence, k: int) -> np.random.SeedSequence:
+    """Child ``k`` of ``ss`` (what ``ss.spawn(k + 1)[k]`` returns on a fresh ``ss``): 0 draws the world,
+    1 the frames' noise, 2 the sequence's style, sensor and materials."""
+    return np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, k), pool_size=ss.pool_size)
+
+
+def plan_sequence(
+    seed: int,
+    index: int,
+    frames: int,
+    config: SynthConfig | None = None,
+    setup: SequenceSetup | None = None,
+) -> SequencePlan:
     """Build the world and the ego drive of sequence ``index`` (deterministic in ``seed, index``).
 
     Raises:
         ConfigError: the world holds more things than 16-bit instance ids can name.
     """
+    return plan_from_seed(sequence_seed(seed, index), frames, config, setup, f"sequence {index:02d}")
+
+
+def plan_from_seed(
+    ss: np.random.SeedSequence,
+    frames: int,
+    config: SynthConfig | None = None,
+    setup: SequenceSetup | None = None,
+    name: str = "sequence",
+) -> SequencePlan:
+    """Build the world and the ego drive from a sequence seed (see :func:`plan_sequence`).
+
+    Without ``setup`` (or with the legacy default) this is the classic street seen by
+    ``config.sensor``; otherwise ``setup``'s style, sensor mounting and materials.
+    """
     config = config or SynthConfig()
-    spec = get_sensor(config.sensor)
-    rng = np.random.default_rng(sequence_seed(seed, index).spawn(1)[0])
+    legacy = setup is None or not setup.randomised
+    spec = get_sensor(config.sensor) if setup is None else setup.spec
+    rng = np.random.default_rng(child_seed(ss, 0))
     times = np.arange(frames, dtype=np.float64) * config.frame_period
-    scene = build_scene(rng, float(times[-1]) if frames else 0.0, config)
+    duration = float(times[-1]) if frames else 0.0
+    if legacy:
+        scene = build_scene(rng, duration, config)
+    else:
+        scene = apply_materials(build_styled_scene(setup.style, rng, duration, config), setup)
     if len(scene.things) > 0xFFFF:
         raise ConfigError(
-            f"sequence {index:02d} would hold {len(scene.things)} things, more than 16-bit instance ids "
+            f"{name} would hold {len(scene.things)} things, more than 16-bit instance ids "
             "allow; use shorter sequences or less traffic"
         )
-    return SequencePlan(scene, _ego_poses(scene, times, spec.height, config.jitter_deg, rng), times)
+    poses = _ego_poses(scene, times, spec.height, config.jitter_deg, rng)
+    if scene.ground is not None:  # stand on the road surface and pitch with its grade
+        x, y, yaw = poses[:, 0, 3], poses[:, 1, 3], np.arctan2(poses[:, 1, 0], poses[:, 0, 0])
+        ahead = scene.ground.surface(x + np.cos(yaw), y + np.sin(yaw))
+        behind = scene.ground.surface(x - np.cos(yaw), y - np.sin(yaw))
+        poses[:, 2, 3] += scene.ground.surface(x, y)
+        pitch = -np.arctan((ahead - behind) / 2.0)
+        c, s = np.cos(pitch), np.sin(pitch)
+        tilt = np.zeros((frames, 3, 3))
+        tilt[:, 0, 0], tilt[:, 0, 2], tilt[:, 1, 1], tilt[:, 2, 0], tilt[:, 2, 2] = c, s, 1.0, -s, c
+        poses[:, :3, :3] = poses[:, :3, :3] @ tilt
+    if not legacy:
+        poses = poses @ setup.mount()
+    return SequencePlan(scene, poses, times, setup)
 
 
 def _ego_poses(scene: Scene, times: np.ndarray, height: float, jitter_deg: float, rng) -> np.ndarray:
@@ -109,6 +160,9 @@ def generate_log(
     config: SynthConfig | None = None,
     on_frame: Callable[[str, int], None] | None = None,
     overwrite: bool = False,
+    style: str = "classic",
+    styles: list[str] | tuple[str, ...] | None = None,
+    sensors: list[str] | tuple[str, ...] | None = None,
 ) -> list[str]:
     """Generate ``sequences`` synthetic sequences of ``frames`` sweeps under ``out_root/sequences/``.
 
@@ -121,19 +175,23 @@ def generate_log(
         sequences: number of sequences.
         frames: sweeps per sequence (10 Hz).
         seed: master seed.
-        sensor: ``hdl64`` or ``vlp32``.
+        sensor: a LiDAR preset (:data:`SENSORS`) or ``random`` (drawn per sequence).
         first_sequence: number of the first sequence.
         config: world knobs; its ``sensor`` is replaced by ``sensor``.
         on_frame: called with (sequence, frame index) after each frame is written.
         overwrite: replace sequences that already exist (their scans and labels are deleted first).
+        style: street style (:data:`styles.STYLES`) or ``random`` (drawn per sequence). Anything but
+            ``classic`` with ``hdl64``/``vlp32`` also draws the sensor's mounting, noise and the
+            remission per sequence; each sequence's choices are written to ``synth.json`` beside it.
+        styles, sensors: what ``random`` draws from (default: all).
 
     Returns:
         The sequence names written.
 
     Raises:
         SequenceLayoutError: a sequence folder already holds files and ``overwrite`` is False.
-        ConfigError: unknown ``sensor``; fewer than one sequence or frame; a negative seed; sequence
-            numbers beyond 99 (names are two digits).
+        ConfigError: unknown ``sensor`` or ``style``; fewer than one sequence or frame; a negative seed;
+            sequence numbers beyond 99 (names are two digits).
     """
     if sequences < 1 or frames < 1:
         raise ConfigError(
@@ -144,8 +202,9 @@ def generate_log(
             f"seed and sequence numbers must be ≥ 0 and sequences must end at 99 (two-digit names), got "
             f"seed={seed}, first_sequence={first_sequence}, sequences={sequences}"
         )
+    check_sensor(sensor)
+    check_style(style)
     config = replace(config or SynthConfig(), sensor=sensor)
-    spec = get_sensor(sensor)
     tr = kitti_tr()
     names = [f"{first_sequence + k:02d}" for k in range(sequences)]
     for name in names:
@@ -153,8 +212,9 @@ def generate_log(
     for name in names:
         index = int(name)
         seq_dir = Path(out_root) / "sequences" / name
-        plan = plan_sequence(seed, index, frames, config)
-        renderer = Renderer(plan.scene, spec, plan.poses[:, :2, 3])
+        setup = choose_setup(child_seed(sequence_seed(seed, index), 2), style, sensor, styles, sensors)
+        plan = plan_sequence(seed, index, frames, config, setup)
+        renderer = Renderer(plan.scene, setup.spec, plan.poses[:, :2, 3])
         frame_seeds = sequence_seed(seed, index).spawn(2)[1].spawn(frames)
         for i in range(frames):
             scan, label = renderer.render(
@@ -165,7 +225,9 @@ def generate_log(
                 on_frame(name, i)
         relative = np.linalg.inv(plan.poses[0])[None] @ plan.poses
         write_sequence_meta(seq_dir, relative, tr, plan.times)
-        log.info("wrote %s (%d frames, %s)", seq_dir, frames, sensor)
+        record = {"sequence": name, "seed": int(seed), **setup.record()}
+        (seq_dir / SETUP_FILE).write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+        log.info("wrote %s (%d frames, %s street, %s)", seq_dir, frames, setup.style, setup.sensor)
     return names
 
 
@@ -176,6 +238,6 @@ def _prepare(seq_dir: Path, overwrite: bool) -> None:
         raise SequenceLayoutError(
             seq_dir, "already holds a sequence; choose another folder or overwrite it (--overwrite)"
         )
-    for pattern in ("velodyne/*.bin", "labels/*.label", "poses.txt", "calib.txt", "times.txt"):
+    for pattern in ("velodyne/*.bin", "labels/*.label", "poses.txt", "calib.txt", "times.txt", SETUP_FILE):
         for path in seq_dir.glob(pattern):
             path.unlink()

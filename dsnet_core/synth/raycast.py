@@ -277,8 +277,35 @@ def bin_primitives(ox, oy, oz, kind, center, half, max_range, n_bins):
 
 
 @nb.njit(cache=True)
-def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground, ground_refl, max_range, salt=0.0):
+def ground_hits_frenet(origin, rot, dirs, ground):
+    """The street's ground hit of every ray (road at z = 0, raised zones at the curb height).
+
+    Returns:
+        t ``(R,)`` distance (inf: no hit), raw class ``(R,) int32``, |cos incidence| ``(R,)``.
+    """
+    nr = dirs.shape[0]
+    out_t = np.empty(nr)
+    out_cls = np.empty(nr, np.int32)
+    out_cos = np.empty(nr)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for r in range(nr):
+        sx, sy, sz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+        dx = rot[0, 0] * sx + rot[0, 1] * sy + rot[0, 2] * sz
+        dy = rot[1, 0] * sx + rot[1, 1] * sy + rot[1, 2] * sz
+        dz = rot[2, 0] * sx + rot[2, 1] * sy + rot[2, 2] * sz
+        t, cls, cos = _ground(ox, oy, oz, dx, dy, dz, ground)
+        out_t[r] = t
+        out_cls[r] = cls
+        out_cos[r] = cos
+    return out_t, out_cls, out_cos
+
+
+@nb.njit(cache=True)
+def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground_hits, ground_refl, max_range, salt=0.0):
     """Cast sensor-frame rays ``dirs (R, 3)`` from ``origin (3,)`` rotated by ``rot (3, 3)``.
+
+    ``ground_hits`` = (t, raw class, |cos|) of each ray's ground hit, from :func:`ground_hits_frenet`
+    or :func:`dsnet_core.synth.ground.ground_hits_raster`.
 
     Vegetation is porous: a ray entering foliage returns from an exponentially distributed depth
     (mean ``FOLIAGE_DEPTH``, at most the far side), so crowns and hedges give volumetric, noisy
@@ -290,6 +317,7 @@ def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground, ground_refl, max_r
     """
     kind, center, yaw, half, semantic, instance, reflectivity = prims
     near, el_lo, el_hi, start, items = cull
+    g_t, g_cls, g_cos = ground_hits
     nr = dirs.shape[0]
     out_t = np.full(nr, math.inf)
     out_sem = np.zeros(nr, np.int32)
@@ -305,7 +333,7 @@ def cast_rays(origin, rot, dirs, prims, cull, n_bins, ground, ground_refl, max_r
         dx = rot[0, 0] * sx + rot[0, 1] * sy + rot[0, 2] * sz
         dy = rot[1, 0] * sx + rot[1, 1] * sy + rot[1, 2] * sz
         dz = rot[2, 0] * sx + rot[2, 1] * sy + rot[2, 2] * sz
-        best, cls, cos = _ground(ox, oy, oz, dx, dy, dz, ground)
+        best, cls, cos = g_t[r], g_cls[r], g_cos[r]
         hit = -1
         el = math.asin(min(1.0, max(-1.0, dz)))
         b = min(int((math.atan2(dy, dx) + math.pi) / bw), n_bins - 1)

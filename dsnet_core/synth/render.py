@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dsnet_core.synth.raycast import GROUND_REFLECTIVITY, bin_primitives, cast_rays
+from dsnet_core.synth.ground import ground_hits_raster
+from dsnet_core.synth.raycast import GROUND_REFLECTIVITY, bin_primitives, cast_rays, ground_hits_frenet
 from dsnet_core.synth.scene import Scene
 from dsnet_core.synth.sensor import LidarSpec, simulate_returns
 
@@ -28,6 +29,12 @@ class Renderer:
         lo = path_xy.min(axis=0) - margin
         hi = path_xy.max(axis=0) + margin
         nx, ny = (np.ceil((hi - lo) / GRID_RES).astype(int) + 1).tolist()
+        self.ground_refl = (
+            GROUND_REFLECTIVITY if scene.ground_reflectivity is None else scene.ground_reflectivity
+        )
+        if scene.ground is not None:  # a styled street: its painted raster replaces the Frenet ground
+            self.ground = scene.ground.kernel_args()
+            return
         grid_s, grid_d = scene.road.frenet_grid(lo[0], lo[1], nx, ny, GRID_RES)
         lay = scene.layout
         meta = np.array([lo[0], lo[1], GRID_RES, lay.s0, lay.ds, lay.lane_width])
@@ -47,6 +54,10 @@ class Renderer:
         max_range = self.spec.max_range
         cull = bin_primitives(*origin, p.kind, p.center, p.half, max_range, AZIMUTH_BINS)
         prims = (p.kind, p.center, p.yaw, p.half, p.semantic, p.instance, p.reflectivity)
+        if self.scene.ground is None:
+            hits = ground_hits_frenet(origin, rot, self.dirs, self.ground)
+        else:
+            hits = ground_hits_raster(origin, rot, self.dirs, *self.ground, max_range + 1.0)
         return cast_rays(
             origin,
             rot,
@@ -54,8 +65,8 @@ class Renderer:
             prims,
             cull,
             AZIMUTH_BINS,
-            self.ground,
-            GROUND_REFLECTIVITY,
+            hits,
+            self.ground_refl,
             max_range + 1.0,
             salt,
         )

@@ -6,11 +6,12 @@ it always places one of each thing class in plain view, so every class appears i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from dsnet_core.synth.config import SynthConfig
+from dsnet_core.synth.ground import RasterGround
 from dsnet_core.synth.layout import SIDES, SIDEWALK_BAND, Occupancy, Street, StuffPlacer, make_layout
 from dsnet_core.synth.primitives import PrimitiveSet
 from dsnet_core.synth.road import (
@@ -52,6 +53,10 @@ class Scene:
         ego_speed: mean speed (m/s).
         things: instance id -> (raw SemanticKITTI id, moving).
         ego_surge: (amplitude m/s, period s, phase rad) of the ego's speed oscillation.
+        ground: painted ground of a styled street (None: the classic flat street of ``layout``).
+        ground_reflectivity: ``(256,) float64`` reflectivity per raw ground class (None: the
+            defaults of :data:`raycast.GROUND_REFLECTIVITY`).
+        style: the street style that built this scene.
     """
 
     road: Road
@@ -62,6 +67,9 @@ class Scene:
     ego_speed: float
     things: dict[int, tuple[int, bool]]
     ego_surge: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    ground: RasterGround | None = None
+    ground_reflectivity: np.ndarray | None = None
+    style: str = "classic"
 
     def ego_s(self, t: np.ndarray) -> np.ndarray:
         """Arc length of the ego at times ``t`` (s): mean speed plus a slow surge, so the drive
@@ -72,7 +80,12 @@ class Scene:
 
     def primitives_at(self, t: float) -> PrimitiveSet:
         """All world primitives at time ``t`` (seconds)."""
-        return PrimitiveSet.concat([self.static, self.actors.at(self.road, t)])
+        actors = self.actors.at(self.road, t)
+        if self.ground is not None and len(actors):
+            x, y, _ = self.road.pose_at(self.actors.s0 + self.actors.speed * t, self.actors.d)
+            lift = self.ground.height_at(x, y)[self.actors.owner]
+            actors = replace(actors, center=actors.center + np.stack([0 * lift, 0 * lift, lift], axis=1))
+        return PrimitiveSet.concat([self.static, actors])
 
 
 def build_scene(rng: np.random.Generator, duration: float, config: SynthConfig) -> Scene:

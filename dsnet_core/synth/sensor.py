@@ -28,6 +28,8 @@ class LidarSpec:
         max_range: returns farther than this are discarded (metres).
         beam_gains: ``(B,)`` per-laser remission gain (real units show ring-to-ring intensity
             differences); empty means 1 for every beam.
+        remission_gain: global remission gain (multiplies every beam's gain).
+        falloff: range fall-off of remission, ``exp(-r / falloff)`` (metres).
     """
 
     name: str
@@ -40,6 +42,8 @@ class LidarSpec:
     min_range: float = 1.0
     max_range: float = 120.0
     beam_gains: tuple[float, ...] = ()
+    remission_gain: float = 1.0
+    falloff: float = 250.0
 
     @property
     def beams(self) -> int:
@@ -76,19 +80,57 @@ def _vlp32_elevations() -> tuple[float, ...]:
     return tuple(float(v) for v in np.sort(el)[::-1])
 
 
-def _gains(beams: int, spread: float) -> tuple[float, ...]:
+def _gains(beams: int, spread: float, seed: int | None = None) -> tuple[float, ...]:
     # fixed per model (seeded by the beam count), like the factory calibration of one unit
-    return tuple(float(g) for g in np.random.default_rng(beams).uniform(1 - spread, 1 + spread, beams))
+    rng = np.random.default_rng(beams if seed is None else seed)
+    return tuple(float(g) for g in rng.uniform(1 - spread, 1 + spread, beams))
+
+
+def _uniform_elevations(beams: int, top: float, bottom: float) -> tuple[float, ...]:
+    return tuple(float(v) for v in np.linspace(top, bottom, beams))
 
 
 SENSORS: dict[str, LidarSpec] = {
     "hdl64": LidarSpec("hdl64", _hdl64_elevations(), 2048, max_range=120.0, beam_gains=_gains(64, 0.25)),
     "vlp32": LidarSpec("vlp32", _vlp32_elevations(), 1024, max_range=100.0, beam_gains=_gains(32, 0.1)),
+    # nuScenes' HDL-32E: 32 beams evenly from +10° to −30°, 1084 firings per turn at 20 Hz
+    "nuscenes32": LidarSpec(
+        "nuscenes32",
+        _uniform_elevations(32, 10.0, -30.0),
+        1084,
+        height=1.84,
+        max_range=70.0,
+        beam_gains=_gains(32, 0.15, seed=3201),
+    ),
+    # Ouster OS1-like: beams evenly over ±22.5°
+    "ouster64": LidarSpec(
+        "ouster64",
+        _uniform_elevations(64, 22.5, -22.5),
+        2048,
+        max_range=120.0,
+        beam_gains=_gains(64, 0.08, seed=6401),
+    ),
+    "ouster128": LidarSpec(
+        "ouster128",
+        _uniform_elevations(128, 22.5, -22.5),
+        1024,
+        max_range=120.0,
+        beam_gains=_gains(128, 0.08, seed=12801),
+    ),
+    # VLP-16: 16 beams 2° apart over ±15°, 0.2° azimuth steps at 10 Hz
+    "vlp16": LidarSpec(
+        "vlp16",
+        _uniform_elevations(16, 15.0, -15.0),
+        1800,
+        max_range=100.0,
+        beam_gains=_gains(16, 0.1, seed=1601),
+    ),
 }
+LEGACY_SENSORS = ("hdl64", "vlp32")  # their default output is pinned byte for byte
 
 
 def get_sensor(name: str) -> LidarSpec:
-    """The preset called ``name`` (``hdl64`` or ``vlp32``).
+    """The preset called ``name`` (a key of :data:`SENSORS`).
 
     Raises:
         ConfigError: unknown name.
@@ -113,7 +155,8 @@ def simulate_returns(
 
     A return is lost with probability ``dropout + far_dropout · (r / max_range)² · (1 − signal)``,
     where ``signal = reflectivity · (0.35 + 0.65 · cos incidence)`` (dark, grazing, far surfaces drop
-    more); remission is ``gain(beam) · signal · exp(−r / 250 m)`` plus noise, clipped to [0, 1].
+    more); remission is ``gain(beam) · remission_gain · signal · exp(−r / falloff)`` plus noise, clipped
+    to [0, 1].
 
     Args:
         dirs: ``(R, 3) float64`` unit ray directions in the sensor frame, beam-major
@@ -129,15 +172,17 @@ def simulate_returns(
         (raw semantic | instance << 16), rays in ``dirs`` order.
     """
     params = np.array(
-        [spec.range_noise, spec.dropout, spec.far_dropout, spec.min_range, spec.max_range], dtype=np.float64
+        [spec.range_noise, spec.dropout, spec.far_dropout, spec.min_range, spec.max_range, spec.falloff],
+        dtype=np.float64,
     )
-    gains = np.asarray(spec.beam_gains or (1.0,) * spec.beams, dtype=np.float64)
+    gains = np.asarray(spec.beam_gains or (1.0,) * spec.beams, dtype=np.float64) * spec.remission_gain
     return _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, gains, rng)
 
 
 @nb.njit(cache=True)
 def _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, gains, rng):
     noise, dropout, far_dropout, min_range, max_range = params[0], params[1], params[2], params[3], params[4]
+    falloff = params[5]
     n = hit_range.shape[0]
     per_beam = n // gains.shape[0]
     scan = np.empty((n, 4), np.float32)
@@ -156,7 +201,7 @@ def _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, p
         scan[k, 1] = dirs[i, 1] * m
         scan[k, 2] = dirs[i, 2] * m
         gain = gains[i // per_beam]
-        scan[k, 3] = min(max(gain * signal * math.exp(-r / 250.0) + rng.normal(0.0, 0.02), 0.0), 1.0)
+        scan[k, 3] = min(max(gain * signal * math.exp(-r / falloff) + rng.normal(0.0, 0.02), 0.0), 1.0)
         label[k] = np.uint32(semantic[i]) | (np.uint32(instance[i]) << np.uint32(16))
         k += 1
     return scan[:k].copy(), label[:k].copy()

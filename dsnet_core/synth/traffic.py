@@ -88,6 +88,9 @@ class Traffic:
     _traj: list[tuple[float, float, float]] = field(default_factory=list)
     _lane_busy: dict[float, list[tuple[float, float]]] = field(default_factory=dict)
     things: dict[int, tuple[int, bool]] = field(default_factory=dict)  # instance -> (raw id, moving)
+    shapes: dict[tuple[int, int], Callable[[np.random.Generator], templates.Shape]] = field(
+        default_factory=lambda: dict(SHAPES)
+    )  # the templates a street draws its things from (styles swap in richer ones)
 
     def _new_instance(self, raw: int, moving: bool) -> int:
         inst = self.next_instance
@@ -97,7 +100,7 @@ class Traffic:
 
     def park(self, cls: tuple[int, int], s: float, d: float, yaw_offset: float = 0.0, shape=None) -> bool:
         """Place a static thing at Frenet ``(s, d)``; False if the spot is taken."""
-        shape = shape or SHAPES[cls](self.rng)
+        shape = shape or self.shapes[cls](self.rng)
         margin = 0.15 if shape.length > 2.5 else 0.04
         if not self.occ.take_box(s, d, shape.length, shape.width, yaw_offset, margin):
             return False
@@ -112,7 +115,9 @@ class Traffic:
     ) -> bool:
         """Add a moving actor on the lane at offset ``d`` (all actors of a lane share its speed);
         ``group`` > 1 puts that many side by side (people walking together)."""
-        shapes = [shape or SHAPES[cls](self.rng)] + [SHAPES[cls](self.rng) for _ in range(group - 1)]
+        shapes = [shape or self.shapes[cls](self.rng)] + [
+            self.shapes[cls](self.rng) for _ in range(group - 1)
+        ]
         length = max(s.length for s in shapes)
         busy = self._lane_busy.setdefault(round(d, 3), [])
         lo, hi = s0 - length / 2 - 1.0, s0 + length / 2 + 1.0
@@ -160,7 +165,7 @@ class Traffic:
             s = s0 + rng.uniform(0.5, 3.0)
             while s < s1 - 3.0:
                 cls = [CAR, OTHER_VEHICLE, TRUCK, MOTORCYCLE][rng.choice(4, p=[0.84, 0.06, 0.04, 0.06])]
-                shape = SHAPES[cls](rng)
+                shape = self.shapes[cls](rng)
                 sc = s + shape.length / 2
                 if sc + shape.length / 2 > s1:
                     break

@@ -14,14 +14,25 @@ def synth(
     sequences: int = typer.Option(1, min=1, max=99, help="Number of sequences."),
     frames: int = typer.Option(20, min=1, help="Sweeps per sequence (10 Hz)."),
     seed: int = typer.Option(0, min=0, help="Master seed; each sequence derives its own from it."),
-    sensor: str = typer.Option("hdl64", help="LiDAR model: hdl64 (64 beams) or vlp32 (32 beams, faster)."),
+    sensor: str = typer.Option(
+        "hdl64",
+        help="LiDAR: hdl64 (64 beams), vlp32 (32, faster), nuscenes32 (+10°…−30°), ouster64, ouster128 "
+        "(uniform ±22.5°), vlp16, or random (drawn per sequence).",
+    ),
     first_sequence: int = typer.Option(0, min=0, max=99, help="Number of the first sequence."),
     overwrite: bool = typer.Option(False, help="Replace sequences that already exist."),
+    style: str = typer.Option(
+        "classic",
+        help="Street: classic, residential, arterial, downtown, junction, parking_lot, country, or random "
+        "(drawn per sequence). Anything but classic with hdl64/vlp32 also draws the sensor's mounting, "
+        "noise and remission per sequence; each sequence's choices go to sequences/SS/synth.json.",
+    ),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
     with errors_exit():
-        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite)
-    typer.echo(f"wrote {sequences} sequence(s) × {frames} frames ({sensor}) to {out.resolve() / 'sequences'}")
+        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style)
+    what = sensor if style == "classic" else f"{style} street, {sensor}"
+    typer.echo(f"wrote {sequences} sequence(s) × {frames} frames ({what}) to {out.resolve() / 'sequences'}")
 
 
 def generate(
@@ -32,6 +43,7 @@ def generate(
     sensor: str = "hdl64",
     first_sequence: int = 0,
     overwrite: bool = False,
+    style: str = "classic",
 ) -> list[str]:
     """Write a synthetic log with a progress bar; returns the sequence names.
 
@@ -52,5 +64,6 @@ def generate(
             sensor=sensor,
             first_sequence=first_sequence,
             overwrite=overwrite,
+            style=style,
             on_frame=lambda _seq, _i: progress.advance(task),
         )

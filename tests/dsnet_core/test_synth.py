@@ -40,9 +40,9 @@ def test_sensor_presets():
     dirs = hdl.directions()
     assert dirs.shape == (64 * 2048, 3)
     np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, atol=1e-12)
-    with pytest.raises(ConfigError, match="unknown LiDAR model 'hdl32'; known: \\['hdl64', 'vlp32'\\]"):
+    with pytest.raises(ConfigError, match="unknown LiDAR model 'hdl32'; known: \\['hdl64', 'nuscenes32'"):
         get_sensor("hdl32")
-    assert set(SENSORS) == {"hdl64", "vlp32"}
+    assert set(SENSORS) == {"hdl64", "vlp32", "nuscenes32", "ouster64", "ouster128", "vlp16"}
 
 
 @pytest.mark.parametrize(

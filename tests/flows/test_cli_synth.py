@@ -102,3 +102,14 @@ def test_demo_labels_exports_and_scores_with_a_checkpoint(tmp_path, cli_env):
     assert "PQ† and LSTQ" in res.stdout and f"scores {out / 'scores.json'}" in res.stdout
     assert len(list((out / "predictions/sequences/00/predictions").glob("*.label"))) == 3
     assert json.loads((out / "scores.json").read_text())["frames"] == 3
+
+
+def test_synth_style_and_sensor_are_recorded(tmp_path):
+    out = tmp_path / "log"
+    res = dsnet("synth", str(out), "--frames", "1", "--style", "country", "--sensor", "vlp16")
+    assert res.returncode == 0, res.stderr
+    assert "(country street, vlp16)" in res.stdout
+    record = json.loads((out / "sequences/00/synth.json").read_text())
+    assert (record["style"], record["sensor"], record["beams"]) == ("country", "vlp16", 16)
+    res = dsnet("synth", str(tmp_path / "x"), "--style", "suburb")
+    assert res.returncode == 2 and "unknown street style 'suburb'" in res.stderr

@@ -1,10 +1,11 @@
 """A data-parallel training run for the distributed tests, launched by a real ``torchrun``:
 
     python -m torch.distributed.run --standalone --nproc_per_node 2 -m tests.helpers.ddp_train \\
-        LOG CKPT REPORT EPOCHS_JSON
+        LOG CKPT REPORT EPOCHS_JSON [CONFIG_JSON]
 
 Each rank trains the tiny test network (``tests.dsnet_core.train.test_loop.TINY``) on sequence 00
-of LOG with the real :class:`Trainer` into CKPT and writes ``REPORT/rank<r>.json``:
+of LOG with the real :class:`Trainer` into CKPT (CONFIG_JSON: further :class:`TrainConfig` fields)
+and writes ``REPORT/rank<r>.json``:
 
 - ``steps``: after every optimiser step of the semantic and offset stages, a sha256 of the rank's
   parameters (identical on every rank if DDP keeps them in step);
@@ -62,6 +63,7 @@ def main() -> None:
     torch.set_num_threads(1)
     log, ckpt, report = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
     epochs = json.loads(sys.argv[4])
+    extra = json.loads(sys.argv[5]) if len(sys.argv) > 5 else {}
     rank = int(os.environ["RANK"])
     writes: list[str] = []
     record_writes(ckpt, writes)
@@ -74,7 +76,7 @@ def main() -> None:
     from tests.dsnet_core.train.test_loop import LM, TINY
 
     reader = SemanticKittiReader(log)
-    cfg = TrainConfig(stage="all", epochs=epochs, augment=False, lr=0.01)
+    cfg = TrainConfig(**{"stage": "all", "epochs": epochs, "augment": False, "lr": 0.01, **extra})
     trainer = Trainer(ckpt, TINY, reader, ["00"], reader, ["00"], LM, cfg)
     steps = []
 

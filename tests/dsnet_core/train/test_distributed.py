@@ -24,11 +24,13 @@ from safetensors.torch import load_file
 
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.model.bundle import load_shift_weights
+from dsnet_core.model.checkpoint import load_checkpoint
 from dsnet_core.train.data import load_sample
 from dsnet_core.train.distributed import Distributed, shard
 from dsnet_core.train.loop import STAGES
 from dsnet_core.train.shifting import clusterer_for, make_shift_module, shift_error, shift_samples
 from tests.dsnet_core.train.test_loop import LM, one_thread, trainer  # noqa: F401
+from tests.helpers.ddp_train import digest
 from tests.helpers.tiny_log import write_tiny_log
 
 REPO = Path(__file__).resolve().parents[3]
@@ -212,3 +214,28 @@ def test_validation_gathered_from_two_ranks_equals_one_process(ddp_run):
     module.load_state_dict(load_shift_weights(ckpt))
     seeds = shift_samples(t.model, t.val_reader, t.val_vols, LM, clusterer_for(1).n_seeds, t.device)
     assert shift_error(module, seeds, t.device) == shift["val_shift_l1"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_early_stopping_restores_the_same_best_weights_on_every_rank(tmp_path):
+    """Rank 0 keeps the best weights in a file that every rank reads back when a stage stops: the
+    ranks end identical, with the checkpoint's weights, and the file is gone."""
+    log = write_tiny_log(tmp_path / "log", frames=5)
+    ckpt, report = tmp_path / "ckpt", tmp_path / "report"
+    report.mkdir()
+    epochs = json.dumps({"semantic": 3, "offset": 2, "shift": 0})
+    extra = json.dumps({"patience": 1, "holdout": 0.4, "lr": 0.05})
+    cmd = torchrun(2, "-m", "tests.helpers.ddp_train", log, ckpt, report, epochs, extra)
+    res = subprocess.run(cmd, cwd=REPO, env=env(), capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    r0, r1 = (json.loads((report / f"rank{r}.json").read_text()) for r in (0, 1))
+    card = json.loads((ckpt / "card.json").read_text())
+    stops = card["training_data"]["early_stop"]
+    assert set(stops) == {"semantic", "offset"}
+    # the offset stage trains on the kept semantic weights (backbone frozen): its mIoU is theirs
+    assert all(m["val_miou"] == stops["semantic"]["value"] for m in card["metrics"] if m["stage"] == "offset")
+    assert r1["writes"] == [] and r0["steps"] == r1["steps"] and r0["final"] == r1["final"]
+    model, _ = load_checkpoint(ckpt)
+    assert digest(model.state_dict()) == r0["final"]
+    assert not list(ckpt.glob("best_*"))

@@ -104,8 +104,12 @@ def train(
     if method not in ("dsnet", "most"):
         raise typer.BadParameter(f"--method must be dsnet or most, not {method!r}")
     if method == "most":
+        import os
+
         from flows.commands.train_most import train_most
 
+        if int(os.environ.get("WORLD_SIZE", "1")) > 1:  # every process would write the checkpoint
+            fail("--method most trains in one process: run it without torchrun (or --nproc_per_node 1)")
         refused = {
             "--freeze-backbone": freeze_backbone,
             "--holdout": holdout != 0.0,

@@ -5,7 +5,8 @@ The weights a stage starts from count as its epoch 0: a stage that never beats t
 head over-fitting four frames) ends with the weights it started from. The best weights of a running
 stage are kept in ``CKPT/best_<stage>.safetensors`` so that an interrupted run resumes with them;
 the card's ``training_data["early_stop"][stage]`` records the best epoch (0 = the incoming
-weights), the epoch the stage ended after and the score.
+weights), the epoch the stage ended after and the score. Under torchrun rank 0 writes that file and
+every rank reads it back.
 """
 
 from __future__ import annotations
@@ -52,8 +53,9 @@ def stage_start(trainer: Trainer, stage: str) -> None:
     """Before a stage's first epoch: score the incoming weights (epoch 0) and keep them as the best."""
     name, _ = SCORES[stage]
     trainer.card.training_data.setdefault("stage_start", {})[stage] = float(trainer.validate()[name])
-    trainer.out.mkdir(parents=True, exist_ok=True)
-    save_tensors(trainer.model.state_dict(), trainer.out / f"best_{stage}.safetensors")
+    if trainer.dist.is_main:
+        trainer.out.mkdir(parents=True, exist_ok=True)
+        save_tensors(trainer.model.state_dict(), trainer.out / f"best_{stage}.safetensors")
 
 
 def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
@@ -69,10 +71,11 @@ def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
     key = [(-s if higher else s) if math.isfinite(s) else math.inf for s in scores]
     best = int(np.argmin(key))  # the first best epoch; 0 = the weights the stage started from
     best_file = trainer.out / f"best_{stage}.safetensors"
-    if best == epoch:
+    if best == epoch and trainer.dist.is_main:
         save_tensors(trainer.model.state_dict(), best_file)
     if epoch - best < trainer.cfg.patience and epoch < total:
         return False
+    trainer.dist.barrier()  # rank 0's best weights are on disk for every rank
     if best != epoch and best_file.is_file():
         trainer.model.load_state_dict(load_file(str(best_file), device=str(trainer.device)))
     trainer.card.training_data.setdefault("early_stop", {})[stage] = {
@@ -82,5 +85,6 @@ def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
         "value": scores[best],
     }
     trainer._save(stage, epoch, None)  # weights, card and metrics land together
-    best_file.unlink(missing_ok=True)
+    if trainer.dist.is_main:
+        best_file.unlink(missing_ok=True)
     return epoch < total

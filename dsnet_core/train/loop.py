@@ -2,6 +2,11 @@
 
 An interrupted run resumes from the last completed epoch: the model card in the checkpoint says
 which epochs are done; the optimiser state is restored when it belongs to that same epoch.
+
+Launched by ``torchrun`` with several processes, the loop trains data-parallel
+(:mod:`dsnet_core.train.distributed`): every rank takes its shard of each epoch's order,
+``DistributedDataParallel`` averages the gradients, validation is split over the ranks and gathered,
+and rank 0 alone writes the checkpoint while the others wait.
 """
 
 from __future__ import annotations
@@ -41,14 +46,15 @@ from dsnet_core.model.losses import (
 )
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
-from dsnet_core.train import commit
+from dsnet_core.train import commit, distributed
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
+from dsnet_core.train.distributed import shard
 from dsnet_core.train.finetune import early_stop, holdout_split, stage_start, volume_name
 from dsnet_core.train.metrics import ConfusionMeter
 from dsnet_core.train.shifting import (
     clusterer_for,
     make_shift_module,
-    shift_error,
+    shift_errors,
     shift_samples,
     train_shift,
 )
@@ -69,10 +75,11 @@ class TrainConfig:
         epochs: epochs per stage.
         lr: Adam learning rate.
         scans: scans per 4D volume (1 = single-scan).
-        batch_size: volumes per step.
+        batch_size: volumes per step (per process under torchrun: the step's batch is
+            ``batch_size × processes``).
         seed: the run's seed (augmentation and shuffling per epoch derive from it).
         augment: apply yaw/flip/scale/translation augmentation.
-        device: "cpu" or "cuda".
+        device: "cpu" or "cuda" (under torchrun each process takes ``cuda:LOCAL_RANK``).
         schedule: "cosine" (per epoch, from ``lr`` down to ``min_lr_ratio * lr`` over each stage's
             epochs) or "constant". The rate is a function of the epoch index only, so a resumed run
             trains exactly as an uninterrupted one.
@@ -140,6 +147,9 @@ AMP_DTYPES = {"off": None, "bf16": torch.bfloat16, "fp16": torch.float16}
 class Trainer:
     """Trains a :class:`DSNet` on volumes read through a :class:`LogReader`.
 
+    Under torchrun (``WORLD_SIZE`` > 1) it joins the process group (:func:`distributed.setup`) and
+    trains data-parallel; the caller ends the group (:func:`distributed.teardown`).
+
     Args:
         out: checkpoint folder (written every epoch).
         model_config: architecture (ignored when resuming: the checkpoint's is used and must match).
@@ -171,7 +181,7 @@ class Trainer:
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), config, label_map
         self.stages = config.stages()
-        self.device = torch.device(config.device)
+        self.dist, self.device = distributed.setup(config.device)
         self.reader, self.val_reader = reader, val_reader
         self.train_vols = volume_refs(reader, sequences, config.scans)
         if not self.train_vols:
@@ -182,7 +192,7 @@ class Trainer:
             val_sequences = sorted({v[-1].sequence for v in self.val_vols})
         else:
             self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
-        if commit.recover(self.out):
+        if self.dist.from_main(lambda: commit.recover(self.out)):
             log.info("%s: finished or discarded the epoch a kill interrupted", self.out)
         exists = (self.out / CARD).is_file()
         if exists and not resume:
@@ -211,12 +221,18 @@ class Trainer:
                 log.info("fine-tuning from %s (epochs %s)", init_from, parent.epochs)
                 inherited = load_shift_weights(init_from)
                 if inherited is not None:  # kept unless this run trains the shift stage again
-                    self.out.mkdir(parents=True, exist_ok=True)
-                    shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
+                    if self.dist.is_main:
+                        self.out.mkdir(parents=True, exist_ok=True)
+                        shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
                     source["shift_weights"] = "inherited"
             else:
                 self.model = DSNet(model_config).to(self.device)
-            counts = class_counts(reader, self.train_vols, label_map)
+            counts, fingerprint = self.dist.from_main(  # every training file read once, on rank 0
+                lambda: (
+                    class_counts(reader, self.train_vols, label_map),
+                    data_fingerprint(reader, self.train_vols),
+                )
+            )
             self.card = ModelCard(
                 architecture=model_config.to_dict(),
                 class_map=class_map_of(label_map),
@@ -225,7 +241,7 @@ class Trainer:
                     "sequences": list(sequences),
                     "volumes": len(self.train_vols),
                     "scans": config.scans,
-                    "fingerprint": data_fingerprint(reader, self.train_vols),
+                    "fingerprint": fingerprint,
                     "class_points": counts.tolist(),
                     "val_root": str(val_reader.root),
                     "val_sequences": list(val_sequences),
@@ -236,7 +252,15 @@ class Trainer:
                 epochs={},
                 metrics=[],
             )
-        self.card.training_data["train_config"] = asdict(config)
+        before = self.card.training_data.get("train_config", {}).get("world_size", 1)
+        if self.card.epochs and before != self.dist.world_size:
+            log.warning(
+                "resuming a run trained with %d process(es) with %d: each step's batch changes, so the "
+                "run does not continue as an uninterrupted one would",
+                before,
+                self.dist.world_size,
+            )
+        self.card.training_data["train_config"] = {**asdict(config), "world_size": self.dist.world_size}
         self.card.code_version = code_version()  # the code that trains now (a resumed card keeps the last)
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 
@@ -249,27 +273,32 @@ class Trainer:
                 continue
             if stage == "shift":
                 self._run_shift(done, total)
-                continue
-            opt = self._optimizer(stage)
-            if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
-                log.info("restored optimiser state of %s epoch %d", stage, done)
-            if self.cfg.patience and done == 0:
-                stage_start(self, stage)
-            for epoch in range(done, total):
-                t0 = time.perf_counter()
-                for group in opt.param_groups:
-                    group["lr"] = self.cfg.epoch_lr(epoch, total)
-                loss = self._train_epoch(stage, epoch, opt, on_step)
-                record = {"stage": stage, "epoch": epoch + 1, "train_loss": loss, **self.validate()}
-                record["seconds"] = round(time.perf_counter() - t0, 2)
-                record["lr"] = self.cfg.epoch_lr(epoch, total)
-                self.card.metrics.append(record)
-                self.card.epochs[stage] = epoch + 1
-                self._save(stage, epoch + 1, opt)
-                log.info("%s epoch %d: loss %.4f, val mIoU %.4f", stage, epoch + 1, loss, record["val_miou"])
-                if self.cfg.patience and early_stop(self, stage, epoch + 1, total):
-                    break
+            else:
+                self._run_stage(stage, done, total, on_step)
         return self.card
+
+    def _run_stage(self, stage: str, done: int, total: int, on_step: StepCallback | None) -> None:
+        """Train epochs ``done`` … ``total − 1`` of the semantic or offset stage."""
+        opt = self._optimizer(stage)
+        net = self.dist.wrap(self.model, self.device)  # after _optimizer chose the trained parameters
+        if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
+            log.info("restored optimiser state of %s epoch %d", stage, done)
+        if self.cfg.patience and done == 0:
+            stage_start(self, stage)
+        for epoch in range(done, total):
+            t0 = time.perf_counter()
+            for group in opt.param_groups:
+                group["lr"] = self.cfg.epoch_lr(epoch, total)
+            loss = self._train_epoch(stage, epoch, opt, on_step, net)
+            record = {"stage": stage, "epoch": epoch + 1, "train_loss": loss, **self.validate()}
+            record["seconds"] = round(time.perf_counter() - t0, 2)
+            record["lr"] = self.cfg.epoch_lr(epoch, total)
+            self.card.metrics.append(record)
+            self.card.epochs[stage] = epoch + 1
+            self._save(stage, epoch + 1, opt)
+            log.info("%s epoch %d: loss %.4f, val mIoU %.4f", stage, epoch + 1, loss, record["val_miou"])
+            if self.cfg.patience and early_stop(self, stage, epoch + 1, total):
+                break
 
     def _stopped_early(self, stage: str, done: int) -> bool:
         stop = self.card.training_data.get("early_stop", {}).get(stage)
@@ -295,7 +324,12 @@ class Trainer:
         return min(valid, recorded)
 
     def _run_shift(self, done: int, total: int) -> None:
-        """Train the shifting MLPs (everything else frozen); weights go to ``CKPT/shift.safetensors``."""
+        """Train the shifting MLPs (everything else frozen); weights go to ``CKPT/shift.safetensors``.
+
+        Data-parallel like the other stages: each rank collects the seeds of its part of the
+        training volumes and draws one of its own samples per step (so a step of W ranks averages W
+        samples' gradients and an epoch has ``ceil(samples / W)`` steps); the validation error is
+        gathered in volume order."""
         for p in self.model.parameters():
             p.requires_grad_(False)
         # initial weights from the run's seed, not from whatever this process drew before: a run
@@ -310,10 +344,21 @@ class Trainer:
             module.load_state_dict(saved)
         n_seeds = clusterer_for(self.cfg.scans).n_seeds
         log.info("shift stage: collecting seeds of %d training volumes", len(self.train_vols))
-        train = shift_samples(self.model, self.reader, self.train_vols, self.label_map, n_seeds, self.device)
-        val = shift_samples(self.model, self.val_reader, self.val_vols, self.label_map, n_seeds, self.device)
-        if not train:
+        mine = [self.train_vols[i] for i in self.dist.part(len(self.train_vols))]
+        train = shift_samples(self.model, self.reader, mine, self.label_map, n_seeds, self.device)
+        val_mine = [self.val_vols[i] for i in self.dist.part(len(self.val_vols))]
+        val = shift_samples(self.model, self.val_reader, val_mine, self.label_map, n_seeds, self.device)
+        counts = self.dist.all_gather(len(train))
+        if not sum(counts):
             raise ConfigError("the shift stage needs training volumes with thing instances")
+        if not all(counts):
+            raise ConfigError(
+                f"the shift stage on {self.dist.world_size} processes: process(es) "
+                f"{[r for r, c in enumerate(counts) if not c]} have no training volume with thing "
+                "instances in their part; train the shift stage with fewer processes"
+            )
+        steps = -(-sum(counts) // self.dist.world_size)  # one pass over the samples of all ranks
+        seed = self.cfg.seed * 1000
         last_miou = next(
             (m["val_miou"] for m in reversed(self.card.metrics) if "val_miou" in m), float("nan")
         )
@@ -322,14 +367,17 @@ class Trainer:
             losses = train_shift(
                 module,
                 train,
-                steps=len(train),
+                steps=steps,
                 lr=self.cfg.lr,
-                seed=self.cfg.seed * 1000 + epoch,
+                seed=[seed + epoch, self.dist.rank] if self.dist.active else seed + epoch,
                 device=str(self.device),
+                wrap=lambda m: self.dist.wrap(m, self.device),
             )
-            record = {"stage": "shift", "epoch": epoch + 1, "train_loss": float(np.mean(losses))}
+            self.dist.sync_buffers(module)  # rank 0's batch-norm statistics, saved and validated
+            record = {"stage": "shift", "epoch": epoch + 1, "train_loss": self._mean(losses)}
             record["val_miou"] = last_miou
-            record["val_shift_l1"] = shift_error(module, val, self.device)
+            errors = np.concatenate(self.dist.all_gather(shift_errors(module, val, self.device)))
+            record["val_shift_l1"] = float(np.mean(errors)) if len(errors) else float("nan")
             record["seconds"] = round(time.perf_counter() - t0, 2)
             self.card.metrics.append(record)
             self.card.epochs["shift"] = epoch + 1
@@ -360,12 +408,25 @@ class Trainer:
             self.model.backbone.eval()
 
     def _train_epoch(
-        self, stage: str, epoch: int, opt: torch.optim.Optimizer, on_step: StepCallback | None
+        self,
+        stage: str,
+        epoch: int,
+        opt: torch.optim.Optimizer,
+        on_step: StepCallback | None,
+        net: torch.nn.Module | None = None,
     ) -> float:
+        """One epoch of ``stage``; ``net`` is the model as trained (its DDP wrapper under torchrun).
+
+        Returns:
+            the mean step loss over all ranks.
+        """
         stage_idx = STAGES.index(stage)
         rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch])
         torch.manual_seed(int(rng.integers(2**31)))
         order = rng.permutation(len(self.train_vols))
+        if self.dist.active:  # this rank's shard of the epoch, and its own augmentation draws
+            order = shard(order, self.dist.world_size, self.dist.rank)
+            rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch, self.dist.rank])
         bs = self.cfg.batch_size
         steps = (len(order) + bs - 1) // bs
         self._set_modes(stage)
@@ -380,7 +441,7 @@ class Trainer:
             if self.cfg.augment:
                 samples = [_with_points(s, augment(s.points, rng)) for s in samples]
             with torch.autocast(self.device.type, dtype=dtype or torch.float32, enabled=dtype is not None):
-                loss = self._loss(stage, samples)
+                loss = self._loss(stage, samples, net)
             opt.zero_grad(set_to_none=True)
             scaler.scale(loss.float()).backward()
             scaler.step(opt)
@@ -397,11 +458,16 @@ class Trainer:
                     steps,
                     np.mean(losses[-25:]),
                 )
-        return float(np.mean(losses))
+        self.dist.sync_buffers(self.model)  # rank 0's batch-norm statistics, saved and validated
+        return self._mean(losses)
 
-    def _loss(self, stage: str, samples: list[Sample]) -> torch.Tensor:
+    def _mean(self, losses: list[float]) -> float:
+        """Mean of every rank's step losses (the same value on every rank)."""
+        return float(np.mean(np.concatenate(self.dist.all_gather(losses))))
+
+    def _loss(self, stage: str, samples: list[Sample], net: torch.nn.Module | None = None) -> torch.Tensor:
         clouds = [torch.from_numpy(s.points).to(self.device) for s in samples]
-        out = self.model(clouds, instance=stage == "offset")
+        out = (self.model if net is None else net)(clouds, instance=stage == "offset")
         if stage == "semantic":
             sem = torch.from_numpy(np.concatenate([s.sem for s in samples])).to(self.device)
             n_vox, n_cls = out.voxel_logits.shape
@@ -417,13 +483,17 @@ class Trainer:
 
     # -- validation and files --------------------------------------------------------------
     def validate(self) -> dict:
-        """Point mIoU (classes 1..C-1) and the eq. 1 offset error (metres) on the validation volumes."""
+        """Point mIoU (classes 1..C-1) and the eq. 1 offset error (metres) on the validation volumes.
+
+        Under torchrun each rank scores its part of the volumes; the confusion matrices are summed
+        and the offset errors summed in volume order, so every rank gets the single process's
+        numbers, bit for bit."""
         self.model.eval()
         meter = ConfusionMeter(self.model.config.num_classes)
-        off_sum, off_n = 0.0, 0
+        rows = []  # per volume with thing points: (mean offset L1 in metres, thing points)
         with torch.inference_mode():
-            for refs in self.val_vols:
-                s = load_sample(self.val_reader, refs, self.label_map)
+            for i in self.dist.part(len(self.val_vols)):
+                s = load_sample(self.val_reader, self.val_vols[i], self.label_map)
                 pts = torch.from_numpy(s.points).to(self.device)
                 out = self.model([pts])
                 pred = (out.logits[:, 1:].argmax(1) + 1).cpu().numpy()
@@ -431,9 +501,14 @@ class Trainer:
                 if s.thing.any():
                     valid = torch.from_numpy(s.thing).to(self.device)
                     centres = instance_centres(pts[:, :3], torch.from_numpy(s.inst).to(self.device), valid)
-                    n = int(valid.sum())
-                    off_sum += float(offset_loss(out.offsets, pts[:, :3], centres, valid)) * n
-                    off_n += n
+                    l1 = float(offset_loss(out.offsets, pts[:, :3], centres, valid))
+                    rows.append((l1, int(valid.sum())))
+        parts = self.dist.all_gather((meter.conf, rows))
+        meter.conf = sum(conf for conf, _ in parts)
+        off_sum, off_n = 0.0, 0
+        for l1, n in (row for _, part in parts for row in part):
+            off_sum += l1 * n
+            off_n += n
         iou = meter.iou()
         names = self.label_map.class_names
         return {
@@ -450,7 +525,15 @@ class Trainer:
         shift: torch.nn.Module | None = None,
     ) -> None:
         """Write the epoch's files together (:mod:`dsnet_core.train.commit`): the optimiser state
-        (or the shifting weights), the weights, the card and the metrics."""
+        (or the shifting weights), the weights, the card and the metrics. Rank 0 writes; the other
+        ranks wait until the files are in place."""
+        if self.dist.is_main:
+            self._write(stage, epochs_done, opt, shift)
+        self.dist.barrier()
+
+    def _write(
+        self, stage: str, epochs_done: int, opt: torch.optim.Optimizer | None, shift: torch.nn.Module | None
+    ) -> None:
         staging = commit.begin(self.out)
         if opt is not None:
             save_train_state(staging, opt, {"stage": stage, "epochs": epochs_done})

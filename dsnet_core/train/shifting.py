@@ -10,11 +10,12 @@ The bandwidths and seed counts are the clusterer's (:class:`DynamicShiftConfig`)
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch import nn
 
 from dsnet_core.instance.clustering_config import DynamicShiftConfig
 from dsnet_core.instance.fps import farthest_point_sampling
@@ -100,8 +101,9 @@ def train_shift(
     samples: Sequence[ShiftSample],
     steps: int,
     lr: float = 1e-3,
-    seed: int = 0,
+    seed: int | Sequence[int] = 0,
     device: str = "cpu",
+    wrap: Callable[[nn.Module], nn.Module] | None = None,
 ) -> list[float]:
     """Adam on the shifting MLPs, one random sample per step.
 
@@ -110,20 +112,23 @@ def train_shift(
         samples: training scans (each with at least 2 seeds).
         steps: optimiser steps.
         lr: learning rate.
-        seed: seeds the sample order.
+        seed: seeds the sample order (a NumPy seed: an int or a sequence of ints).
         device: where the module and tensors live.
+        wrap: runs the forward passes through ``wrap(module)`` (data-parallel training: its
+            ``DistributedDataParallel`` wrapper, which averages the gradients over processes).
 
     Returns:
         The loss of every step.
     """
     rng = np.random.default_rng(seed)
     module.to(device).train()
+    net = module if wrap is None else wrap(module)
     opt = torch.optim.Adam(module.parameters(), lr=lr)
     tensors = [_tensors(s, device) for s in samples]
     losses = []
     for step in range(steps):
         x, f, gt = tensors[int(rng.integers(len(tensors)))]
-        loss = shift_loss(module(x, f).positions, gt)
+        loss = shift_loss(net(x, f).positions, gt)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -138,13 +143,18 @@ def shift_error(module: DynamicShift, samples: list[ShiftSample], device: torch.
     """Mean eq. 4 loss (summed over iterations, metres) of the module in eval mode."""
     if not samples:
         return float("nan")
+    return float(np.mean(shift_errors(module, samples, device)))
+
+
+def shift_errors(module: DynamicShift, samples: list[ShiftSample], device: torch.device) -> list[float]:
+    """Eq. 4 loss (summed over iterations, metres) of every sample, the module in eval mode."""
     module.eval()
     losses = []
     with torch.no_grad():
         for s in samples:
             x, f, gt = _tensors(s, device)
             losses.append(float(shift_loss(module(x, f).positions, gt)))
-    return float(np.mean(losses))
+    return losses
 
 
 def _tensors(s: ShiftSample, device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -1,4 +1,8 @@
-"""``dsnet train``: train the network on a labelled log (staged, resumable)."""
+"""``dsnet train``: train the network on a labelled log (staged, resumable).
+
+Under ``torchrun --nproc_per_node N -m flows.cli train …`` it trains data-parallel, one process per
+GPU; rank 0 alone shows progress, logs at INFO and writes the checkpoint.
+"""
 
 from __future__ import annotations
 
@@ -93,12 +97,19 @@ def train(
     pooling: str = typer.Option("mean", "--pooling", help="Equivariant: invariant pooling, mean or max."),
 ) -> None:
     """Train DS-Net (semantic → instance head → shifting) or MOST (``--method most``: detection,
-    segmentation and velocity → PointSegMLP) and write a checkpoint with a model card."""
+    segmentation and velocity → PointSegMLP) and write a checkpoint with a model card.
+
+    DS-Net trains data-parallel under torchrun: ``torchrun --nproc_per_node 2 -m flows.cli train DATA
+    --out CKPT --device cuda`` (``--batch-size`` is per process)."""
     if method not in ("dsnet", "most"):
         raise typer.BadParameter(f"--method must be dsnet or most, not {method!r}")
     if method == "most":
+        import os
+
         from flows.commands.train_most import train_most
 
+        if int(os.environ.get("WORLD_SIZE", "1")) > 1:  # every process would write the checkpoint
+            fail("--method most trains in one process: run it without torchrun (or --nproc_per_node 1)")
         refused = {
             "--freeze-backbone": freeze_backbone,
             "--holdout": holdout != 0.0,
@@ -125,10 +136,14 @@ def train(
     from dsnet_core.io.formats import open_log
     from dsnet_core.labels import load_label_map
     from dsnet_core.model.presets import get_preset
+    from dsnet_core.train import distributed
     from dsnet_core.train.loop import TrainConfig, Trainer
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
     torch.set_num_threads(threads)
+    dist, _ = distributed.setup(device)  # one process without torchrun
+    level = logging.INFO if dist.is_main else logging.WARNING
+    rank = f" rank {dist.rank}" if dist.active else ""
+    logging.basicConfig(level=level, format=f"%(asctime)s{rank} %(levelname)s %(message)s")
     console = Console(stderr=True)
     try:
         label_map = load_label_map("semantic-kitti")
@@ -139,7 +154,7 @@ def train(
             vseqs = val_sequences.split(",")
         else:
             vseqs = val_reader.sequences() if val_data else seqs
-        if not val_data and not val_sequences and not holdout:
+        if not val_data and not val_sequences and not holdout and dist.is_main:
             console.print("[yellow]no validation set given: validating on the training sequences[/]")
         cfg = TrainConfig(
             stage=stage,
@@ -163,6 +178,9 @@ def train(
         trainer = Trainer(
             out, model_config, reader, seqs, val_reader, vseqs, label_map, cfg, resume, init_from, lift
         )
+        if not dist.is_main:  # progress and the final lines come from rank 0
+            trainer.run()
+            return
         with Progress(
             TextColumn("{task.description}"),
             BarColumn(),
@@ -182,6 +200,8 @@ def train(
             card = trainer.run(on_step=on_step)
     except DsnetError as exc:
         fail(exc)
+    finally:
+        distributed.teardown()
     miou = card.metrics[-1]["val_miou"] if card.metrics else float("nan")
     typer.echo(f"wrote checkpoint {out.resolve()} (epochs {card.epochs}, val mIoU {miou:.4f})")
     typer.echo(f"metrics table: {out.resolve() / 'metrics.csv'}")

@@ -55,3 +55,10 @@ def test_train_most_refuses_dsnet_flags(tmp_path):
     assert (
         res.exit_code == 2 and "--patience, --amp: not a setting of dsnet train --method most" in res.output
     )
+
+
+def test_train_most_refuses_torchrun(tmp_path, monkeypatch):
+    monkeypatch.setenv("WORLD_SIZE", "2")  # as torchrun sets it: MOST's trainer is single-process
+    res = CliRunner().invoke(app, ["train", "x", "--out", str(tmp_path / "o"), "--method", "most"])
+    assert res.exit_code == 2 and "--method most trains in one process" in res.output
+    assert not (tmp_path / "o").exists()

@@ -59,6 +59,7 @@ from dsnet_core.train.shifting import (
     train_shift,
 )
 from dsnet_core.train.state import load_train_state, save_train_state
+from dsnet_core.train.stream import StreamLog
 
 log = logging.getLogger(__name__)
 STAGES = ("semantic", "offset", "shift")
@@ -183,7 +184,10 @@ class Trainer:
         self.stages = config.stages()
         self.dist, self.device = distributed.setup(config.device)
         self.reader, self.val_reader = reader, val_reader
-        self.train_vols = volume_refs(reader, sequences, config.scans)
+        if isinstance(reader, StreamLog):  # one volume per sample; epochs draw their own windows
+            self.train_vols = reader.volumes(sequences)
+        else:
+            self.train_vols = volume_refs(reader, sequences, config.scans)
         if not self.train_vols:
             raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
         if config.holdout > 0:
@@ -230,7 +234,9 @@ class Trainer:
             counts, fingerprint = self.dist.from_main(  # every training file read once, on rank 0
                 lambda: (
                     class_counts(reader, self.train_vols, label_map),
-                    data_fingerprint(reader, self.train_vols),
+                    reader.fingerprint()
+                    if isinstance(reader, StreamLog)
+                    else data_fingerprint(reader, self.train_vols),
                 )
             )
             self.card = ModelCard(
@@ -248,6 +254,7 @@ class Trainer:
                     "frames": [volume_name(v) for v in self.train_vols],
                     **({"val_frames": [volume_name(v) for v in self.val_vols]} if config.holdout else {}),
                     **({"init_from": source} if source else {}),
+                    **({"stream": reader.record()} if isinstance(reader, StreamLog) else {}),
                 },
                 epochs={},
                 metrics=[],
@@ -343,6 +350,8 @@ class Trainer:
         if saved is not None:
             module.load_state_dict(saved)
         n_seeds = clusterer_for(self.cfg.scans).n_seeds
+        if isinstance(self.reader, StreamLog):  # seeds of the shift stage's own window
+            self.train_vols = self.reader.volumes(self.reader.window(STAGES.index("shift"), 0))
         log.info("shift stage: collecting seeds of %d training volumes", len(self.train_vols))
         mine = [self.train_vols[i] for i in self.dist.part(len(self.train_vols))]
         train = shift_samples(self.model, self.reader, mine, self.label_map, n_seeds, self.device)
@@ -421,12 +430,16 @@ class Trainer:
             the mean step loss over all ranks.
         """
         stage_idx = STAGES.index(stage)
+        if isinstance(self.reader, StreamLog):  # never-seen samples, a function of (stage, epoch)
+            self.train_vols = self.reader.volumes(self.reader.window(stage_idx, epoch))
         rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch])
         torch.manual_seed(int(rng.integers(2**31)))
         order = rng.permutation(len(self.train_vols))
         if self.dist.active:  # this rank's shard of the epoch, and its own augmentation draws
             order = shard(order, self.dist.world_size, self.dist.rank)
             rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch, self.dist.rank])
+        if isinstance(self.reader, StreamLog):
+            self.reader.prefetch([self.train_vols[i][-1].sequence for i in order])
         bs = self.cfg.batch_size
         steps = (len(order) + bs - 1) // bs
         self._set_modes(stage)

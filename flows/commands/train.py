@@ -39,8 +39,20 @@ def with_grid(config, grid: str | None):
     return replace(config, grid=replace(config.grid, size=cells))
 
 
+def stream_log(seed: int, scans: int, samples: int, styles: str | None, sensors: str | None, workers: int):
+    """The :class:`~dsnet_core.train.stream.StreamLog` of ``--stream`` (samples of k = ``scans`` frames)."""
+    from dsnet_core.synth.stream import StreamOptions
+    from dsnet_core.train.stream import StreamLog
+
+    def names(text: str | None) -> tuple[str, ...] | None:
+        return tuple(v.strip() for v in text.split(",") if v.strip()) if text else None
+
+    options = StreamOptions(frames=scans, styles=names(styles), sensors=names(sensors))
+    return StreamLog(seed, options, samples, workers)
+
+
 def train(
-    data: Path = typer.Argument(..., help="Training log root (SemanticKITTI layout)."),
+    data: Path = typer.Argument(None, help="Training log root (SemanticKITTI layout); none with --stream."),
     out: Path = typer.Option(..., "--out", help="Checkpoint folder (written every epoch)."),
     method: str = typer.Option(
         "dsnet", "--method", help="dsnet (DS-Net / 4D-DS-Net) or most (detect → member stages)."
@@ -95,6 +107,15 @@ def train(
         "plain model, its weights lifted to C_n (shared by the n rotated copies) and fine-tuned.",
     ),
     pooling: str = typer.Option("mean", "--pooling", help="Equivariant: invariant pooling, mean or max."),
+    stream: int = typer.Option(
+        0,
+        "--stream",
+        min=0,
+        help="Train on N never-seen generated sequences per epoch instead of DATA (needs --val-data).",
+    ),
+    stream_styles: str = typer.Option(None, help="--stream: street styles to draw from (default: all)."),
+    stream_sensors: str = typer.Option(None, help="--stream: sensors to draw from (default: all)."),
+    stream_workers: int = typer.Option(1, min=0, help="--stream: background render processes."),
 ) -> None:
     """Train DS-Net (semantic → instance head → shifting) or MOST (``--method most``: detection,
     segmentation and velocity → PointSegMLP) and write a checkpoint with a model card.
@@ -103,6 +124,10 @@ def train(
     --out CKPT --device cuda`` (``--batch-size`` is per process)."""
     if method not in ("dsnet", "most"):
         raise typer.BadParameter(f"--method must be dsnet or most, not {method!r}")
+    if (data is None) == (stream == 0):
+        fail("give a training log (DATA) or --stream N, not both or neither")
+    if stream and (val_data is None or holdout):
+        fail("--stream needs --val-data VAL (a folder log: the stream has no fixed frames to hold out)")
     if method == "most":
         import os
 
@@ -147,8 +172,12 @@ def train(
     console = Console(stderr=True)
     try:
         label_map = load_label_map("semantic-kitti")
-        reader = open_log(data, options={"label_map": label_map})
-        seqs = sequences.split(",") if sequences else reader.sequences()
+        if stream:
+            reader = stream_log(seed, scans, stream, stream_styles, stream_sensors, stream_workers)
+            seqs = reader.probe()  # the class statistics the loss weights come from
+        else:
+            reader = open_log(data, options={"label_map": label_map})
+            seqs = sequences.split(",") if sequences else reader.sequences()
         val_reader = open_log(val_data, options={"label_map": label_map}) if val_data else reader
         if val_sequences:
             vseqs = val_sequences.split(",")
@@ -201,6 +230,8 @@ def train(
     except DsnetError as exc:
         fail(exc)
     finally:
+        if stream and "reader" in locals():
+            reader.close()
         distributed.teardown()
     miou = card.metrics[-1]["val_miou"] if card.metrics else float("nan")
     typer.echo(f"wrote checkpoint {out.resolve()} (epochs {card.epochs}, val mIoU {miou:.4f})")

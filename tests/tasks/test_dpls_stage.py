@@ -92,7 +92,7 @@ def test_switching_the_prior_source_recomputes_only_prior_and_downstream(dpls_ru
 
 
 def test_a_prior_whose_count_or_classes_do_not_match_is_refused(dpls_run, synth_log, tmp_path):
-    store, run, _m, _tmp = dpls_run
+    _store, run, _m, _tmp = dpls_run
     p = get_pipeline("dpls")
     prior = write_gt_prior(synth_log, tmp_path / "short", layout="flat")
     f = prior / "00" / "000002.label"
@@ -102,7 +102,9 @@ def test_a_prior_whose_count_or_classes_do_not_match_is_refused(dpls_run, synth_
     copy.write_run_config("r4", short)
     for stage in ("ingest", "align"):
         run_stage_plain(copy, p, "00", stage, short, "r4")
-    with pytest.raises(PriorFormatError, match=r"000002\.label: has \d+ points but its scan .*000002\.bin has"):
+    with pytest.raises(
+        PriorFormatError, match=r"000002\.label: has \d+ points but its scan .*000002\.bin has"
+    ):
         run_stage_plain(copy, p, "00", "prior", short, "r4")
     # probabilities over another label map's classes: the prior stage reads them, dpls refuses
     nus = load_label_map("panoptic-nuscenes")
@@ -111,13 +113,13 @@ def test_a_prior_whose_count_or_classes_do_not_match_is_refused(dpls_run, synth_
     frames = copy.read_table("00", p["ingest"].table("frames")).to_pydict()
     for fid, n in zip(frames["frame_id"], frames["n_points"], strict=True):
         np.save(probs_dir / "00" / f"{fid}.npy", np.eye(nus.num_classes, dtype=np.float32)[np.ones(n, int)])
-    wrong = {
-        **run,
-        "stages": {**run["stages"], "prior": {"source": "user", "path": str(probs_dir), "label_map": "panoptic-nuscenes"}},
-    }  # fmt: skip
+    nus_prior = {"source": "user", "path": str(probs_dir), "label_map": "panoptic-nuscenes"}
+    wrong = {**run, "stages": {**run["stages"], "prior": nus_prior}}
     copy.write_run_config("r5", wrong)
     run_stage_plain(copy, p, "00", "prior", wrong, "r5")
-    with pytest.raises(ConfigError, match="semantic prior's classes .*panoptic-nuscenes.* are not those of D-PLS"):
+    with pytest.raises(
+        ConfigError, match=r"semantic prior's classes .*panoptic-nuscenes.* are not those of D-PLS"
+    ):
         prepare_stage(copy, p, "00", "dpls", wrong, "r5")
 
 

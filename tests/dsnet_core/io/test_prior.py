@@ -52,7 +52,9 @@ def test_a_count_mismatch_names_the_prior_and_the_scan(tmp_path):
 
 def test_unknown_ids_bad_width_and_missing_files_are_refused_by_name(tmp_path):
     np.array([10, 999, 40], np.uint32).tofile(tmp_path / "u.label")
-    with pytest.raises(PriorFormatError, match=r"u\.label: raw class ids \[999\] are not in the semantic-kitti"):
+    with pytest.raises(
+        PriorFormatError, match=r"u\.label: raw class ids \[999\] are not in the semantic-kitti"
+    ):
         read_prior(tmp_path / "u.label", 3, "s.bin", LM)
     np.save(tmp_path / "w.npy", np.zeros((3, 7), np.float32))
     with pytest.raises(PriorFormatError, match=r"w\.npy: has 7 classes per point; .* 20 train ids"):
@@ -63,5 +65,7 @@ def test_unknown_ids_bad_width_and_missing_files_are_refused_by_name(tmp_path):
     (tmp_path / "t.label").write_bytes(b"abc")
     with pytest.raises(PriorFormatError, match=r"t\.label: size 3 B"):
         read_prior(tmp_path / "t.label", 3, "s.bin", LM)
-    with pytest.raises(PriorFormatError, match=r"predictions/000009\.label: no semantic prior for frame 000009"):
+    with pytest.raises(
+        PriorFormatError, match=r"predictions/000009\.label: no semantic prior for frame 000009"
+    ):
         find_prior(tmp_path, "05", "000009")

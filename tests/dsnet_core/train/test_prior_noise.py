@@ -89,6 +89,8 @@ def test_corruption_is_seeded_and_scaling_spans_clean_to_harsh():
     assert np.allclose(scale_confusion(conf, 0.0), np.eye(C))
     assert np.allclose(scale_confusion(conf, 1.0), conf)
     harsh = scale_confusion(conf, 5.0)
-    assert np.allclose(harsh.sum(1), 1) and (np.diag(harsh)[1:] >= 0).all() and np.diag(harsh)[1:].max() < 1e-9
+    assert (
+        np.allclose(harsh.sum(1), 1) and (np.diag(harsh)[1:] >= 0).all() and np.diag(harsh)[1:].max() < 1e-9
+    )
     m = confusion_matrix(np.array([1, 1, 2, 2]), np.array([1, 2, 2, 2]), 3)
     assert np.allclose(m, [[1, 0, 0], [0, 0.5, 0.5], [0, 0, 1]])

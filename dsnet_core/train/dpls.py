@@ -258,15 +258,28 @@ class DplsTrainer:
         return {f"val_offset_l1_{k}": v / n if n else float("nan") for k, v in sums.items()}
 
     def _save(self, epochs_done: int, opt) -> None:
-        from dsnet_core.train.loop import write_metrics_table
-
         staging = commit.begin(self.out)
         save_train_state(staging, opt, {"stage": STAGE, "epochs": epochs_done})
         if (self.out / SHIFT_WEIGHTS).is_file():
             shutil.copyfile(self.out / SHIFT_WEIGHTS, staging / SHIFT_WEIGHTS)
         save_checkpoint(staging, self.model, self.card)
-        write_metrics_table(staging, self.card.metrics)
+        write_metrics_csv(staging, self.card.metrics)
         commit.commit(self.out)
+
+
+METRIC_COLUMNS = ("epoch", "lr", "train_loss", "val_offset_l1_clean", "val_offset_l1_corrupted", "seconds")
+
+
+def write_metrics_csv(out: Path, metrics: list[dict]) -> None:
+    """``metrics.json`` (the records) and ``metrics.csv`` (:data:`METRIC_COLUMNS`) beside the checkpoint."""
+    import csv
+    import json
+
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    with open(out / "metrics.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(metrics)
 
 
 def measure_confusion(model: DSNet, reader: LogReader, volumes, label_map: LabelMap, device) -> np.ndarray:

@@ -26,6 +26,11 @@ class LabelFormatError(DataFormatError):
     """A label file does not match its scan, or holds ids the label map does not know."""
 
 
+class PriorFormatError(DataFormatError):
+    """A semantic prior file (D-PLS) is missing, does not match its scan's point count, holds class
+    ids its label map does not know, or probabilities of the wrong width."""
+
+
 class PoseFormatError(DataFormatError):
     """``poses.txt``/``calib.txt``/``times.txt`` is missing, short, or not rigid."""
 

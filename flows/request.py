@@ -73,7 +73,7 @@ class LabelRequest(BaseModel):
         share no frame, so stitching could only hand out fresh ids), stitching for k > 1.
         """
         options = dict(self.method_options)
-        if self.method == "dsnet" and options.get("temporal", "auto") == "auto":
+        if self.method in ("dsnet", "dpls") and options.get("temporal", "auto") == "auto":
             scans = int(self.stages.get("align", {}).get("scans", 1))
             options["temporal"] = "track" if scans == 1 else "stitch"
         elif options.get("temporal") == "auto":
@@ -119,6 +119,8 @@ class LabelRequest(BaseModel):
             grid = None
             if "infer" in pipeline:
                 grid = model_grid(self.stages.get("infer", {}), self.stages.get("align", {}))
+            elif "dpls" in pipeline:
+                grid = dpls_model_grid(self.stages.get("dpls", {}))
             elif "most" in pipeline:
                 grid = most_model_grid(self.stages.get("most", {}))
             if grid is not None:
@@ -137,6 +139,19 @@ def model_grid(infer: dict[str, Any], align: dict[str, Any]) -> dict[str, list[f
     from dsnet_core.model.checkpoint import read_card
 
     path = infer.get("checkpoint") or bundled_checkpoint(int(align.get("scans", 1)))
+    if path is None:
+        return None
+    grid = read_card(path).config.grid
+    return {"min_bound": list(grid.min_bound), "max_bound": list(grid.max_bound)}
+
+
+def dpls_model_grid(dpls: dict[str, Any]) -> dict[str, list[float]] | None:
+    """The grid bounds of the D-PLS model a ``dpls`` config names (the bundled one when it names
+    none); None when no D-PLS model is bundled."""
+    from dsnet_core.model.bundle import bundled_dpls_checkpoint
+    from dsnet_core.model.checkpoint import read_card
+
+    path = dpls.get("checkpoint") or bundled_dpls_checkpoint()
     if path is None:
         return None
     grid = read_card(path).config.grid
@@ -200,8 +215,16 @@ def stage_settings(
     tta_flip: bool = False,
     equivariant: int | None = None,
     method: str = "dsnet",
+    semantic_prior: str | None = None,
+    prior_label_map: str | None = None,
 ) -> dict[str, dict[str, Any]]:
     """The per-stage configs of the command-line settings.
+
+    For ``method="dpls"`` the checkpoint is the D-PLS instance network, the prior comes from
+    ``semantic_prior`` (a folder of per-scan predictions, read through ``prior_label_map``) or, when
+    none is given, from the bundled model's semantics, and clustering is DBSCAN unless ``clusterer``
+    names another; TTA and equivariance are refused. The prior's settings are refused for the
+    other methods.
 
     For ``method="most"``, ``scans`` is MOST's accumulation (the current scan and k − 1 past ones,
     stride 1) and ``align`` runs on single scans; the DS-Net-only settings (stride, clusterer,
@@ -218,10 +241,25 @@ def stage_settings(
         tta: yaw rotations averaged by infer (1: none); ``tta_flip`` adds their mirror images.
         equivariant: the n the checkpoint must have been trained with (None: whatever it has).
         method: the labelling method (:data:`tasks.methods.METHODS`).
+        semantic_prior: D-PLS: the folder of per-scan prior files (:mod:`dsnet_core.io.prior`).
+        prior_label_map: D-PLS: the prior files' label map, a bundled name or a YAML file.
 
     Raises:
         ValueError: ``clusterer`` is neither a kind nor valid JSON, or a setting the method lacks.
     """
+    if method != "dpls":
+        given = [
+            f for f, v in (("--semantic-prior", semantic_prior), ("--prior-label-map", prior_label_map)) if v
+        ]
+        if given:
+            raise ValueError(
+                f"{', '.join(given)}: not a setting of method {method} (it applies to --method dpls)"
+            )
+    if method == "dpls":
+        return _dpls_settings(
+            scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip,
+            equivariant, semantic_prior, prior_label_map,
+        )  # fmt: skip
     if method == "most":
         return _most_settings(
             scans,
@@ -253,11 +291,67 @@ def stage_settings(
     if infer:
         stages["infer"] = infer
     if clusterer:
-        try:
-            cfg = json.loads(clusterer) if clusterer.lstrip().startswith("{") else {"kind": clusterer}
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--clusterer is not valid JSON: {exc}") from None
-        stages["shift"] = {"clusterer": cfg}
+        stages["shift"] = {"clusterer": _clusterer_config(clusterer)}
+    return stages
+
+
+def _clusterer_config(clusterer: str) -> dict[str, Any]:
+    """``--clusterer``: a kind (``dbscan``) or a JSON config. Raises ValueError for bad JSON."""
+    try:
+        return json.loads(clusterer) if clusterer.lstrip().startswith("{") else {"kind": clusterer}
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--clusterer is not valid JSON: {exc}") from None
+
+
+def _dpls_settings(
+    scans: int,
+    stride: int | None,
+    checkpoint: str | None,
+    clusterer: str | None,
+    estimate_poses: bool,
+    max_points: int | None,
+    device: str | None,
+    tta: int,
+    tta_flip: bool,
+    equivariant: int | None,
+    semantic_prior: str | None,
+    prior_label_map: str | None,
+) -> dict[str, dict[str, Any]]:
+    """:func:`stage_settings` for D-PLS (see there)."""
+    refused = {"--tta": tta != 1 or tta_flip, "--equivariant": equivariant is not None}
+    bad = [flag for flag, given in refused.items() if given]
+    if bad:
+        raise ValueError(f"{', '.join(bad)}: not a setting of method dpls (it applies to --method dsnet)")
+    if prior_label_map and not semantic_prior:
+        raise ValueError(
+            "--prior-label-map: names the label map of --semantic-prior files; give --semantic-prior DIR"
+        )
+    stages: dict[str, dict[str, Any]] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
+    ingest: dict[str, Any] = {"estimate_poses": True} if estimate_poses else {}
+    if max_points is not None:
+        ingest["max_points"] = max_points
+    if ingest:
+        stages["ingest"] = ingest
+    prior: dict[str, Any] = {}
+    if semantic_prior:
+        prior = {"source": "user", "path": str(Path(semantic_prior).expanduser().resolve())}
+        if prior_label_map:
+            is_file = Path(prior_label_map).expanduser().is_file()
+            prior["label_map"] = (
+                str(Path(prior_label_map).expanduser().resolve()) if is_file else prior_label_map
+            )
+    if device:
+        prior["device"] = device
+    if prior:
+        stages["prior"] = prior
+    dpls: dict[str, Any] = {}
+    if checkpoint:
+        dpls["checkpoint"] = str(Path(checkpoint).expanduser().resolve())
+    if device:
+        dpls["device"] = device
+    if dpls:
+        stages["dpls"] = dpls
+    stages["shift"] = {"clusterer": _clusterer_config(clusterer) if clusterer else {"kind": "dbscan"}}
     return stages
 
 

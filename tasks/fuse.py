@@ -47,8 +47,9 @@ class FuseConfig(StageConfig):
 
 
 class FuseStage(Stage):
+    """Fuses ``source``'s semantics (``infer``'s predictions, or ``dpls``'s prior) with shift's instances."""
+
     name = "fuse"
-    upstream = ("infer", "shift")
     version = "1"
     Config = FuseConfig
     item = "volume"
@@ -58,8 +59,16 @@ class FuseStage(Stage):
     )
     tables = (INSTANCES,)
 
+    def __init__(self, source: str = "infer") -> None:
+        from tasks.shift import SOURCES
+
+        if source not in SOURCES:
+            raise ValueError(f"fuse cannot read stage {source!r}; sources are {SOURCES}")
+        self.source = source
+        self.upstream = (source, "shift")
+
     def plan(self, ctx: StageContext) -> Plan:
-        infer = ctx.manifest("infer")
+        infer = ctx.manifest(self.source)
         return Plan(n_items=infer.n_items, max_points=int(infer.plan["max_points"]))
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
@@ -68,7 +77,7 @@ class FuseStage(Stage):
 
         things = ctx.label_map.things
         align = ctx.arrays("align")
-        infer = ctx.arrays("infer")
+        infer = ctx.arrays(self.source)
         shift = ctx.arrays("shift")
         for item in items:
             xyz = align.read_item(item, ["points"])["points"][:, :3]

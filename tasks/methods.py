@@ -2,6 +2,7 @@
 
 ``dsnet`` is DS-Net (k = 1) and 4D-DS-Net (k > 1): ingest → align → infer → shift → fuse →
 stitch (or track) → score. ``most`` is MOST: ingest → align (single scans) → most → track → score.
+``dpls`` is D-PLS: ingest → align → prior → dpls → shift → fuse → stitch (or track) → score.
 A new method adds one factory to :data:`METHODS`; stages shared with another
 method (ingest, align) keep their names, so switching methods recomputes only what differs.
 """
@@ -12,11 +13,13 @@ from collections.abc import Callable
 from typing import Any
 
 from tasks.align import AlignStage
+from tasks.dpls import DplsStage
 from tasks.fuse import FuseStage
 from tasks.infer import InferStage
 from tasks.ingest import IngestStage
 from tasks.most import MostStage
 from tasks.pipeline import Pipeline
+from tasks.prior import PriorStage
 from tasks.score import ScoreStage
 from tasks.shift import ShiftStage
 from tasks.stitch import StitchStage
@@ -62,7 +65,31 @@ def most(temporal: str = "track") -> Pipeline:
     return Pipeline("most", stages, labels="track")
 
 
-METHODS: dict[str, Callable[..., Pipeline]] = {"dsnet": dsnet, "most": most}
+def dpls(temporal: str = "stitch") -> Pipeline:
+    """D-PLS: single-scan semantic priors (the user's files or the bundled model's) aggregated into
+    the volumes, the prior-conditioned instance network, clustering (DBSCAN by default, set in
+    ``shift``'s config), majority vote over the prior's classes, then ``temporal`` as for DS-Net.
+
+    Raises:
+        ValueError: an unknown ``temporal``.
+    """
+    if temporal not in TEMPORAL:
+        raise ValueError(f"unknown temporal association {temporal!r}; choose one of {sorted(TEMPORAL)}")
+    stages = (
+        IngestStage(),
+        AlignStage(),
+        PriorStage(),
+        DplsStage(),
+        ShiftStage(source="dpls"),
+        FuseStage(source="dpls"),
+        TEMPORAL[temporal](),
+        ScoreStage(labels=temporal),
+    )
+    options = () if temporal == "stitch" else (("temporal", temporal),)
+    return Pipeline("dpls", stages, labels=temporal, options=options)
+
+
+METHODS: dict[str, Callable[..., Pipeline]] = {"dsnet": dsnet, "most": most, "dpls": dpls}
 DEFAULT_METHOD = "dsnet"
 
 

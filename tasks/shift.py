@@ -72,9 +72,14 @@ def cluster_volume(clusterer, xyz: np.ndarray, centres: np.ndarray, features: np
     return out.ids, out.seeds, out.converged
 
 
+SOURCES = ("infer", "dpls")
+"""Stages whose per-volume ``sem``, ``offsets`` and ``features`` (infer's arrays) ``shift`` clusters."""
+
+
 class ShiftStage(Stage):
+    """Clusters ``source``'s thing points: DS-Net's ``infer`` (default) or D-PLS's ``dpls``."""
+
     name = "shift"
-    upstream = ("infer",)
     version = "1"
     Config = ShiftConfig
     item = "volume"
@@ -89,8 +94,14 @@ class ShiftStage(Stage):
         ),
     )
 
+    def __init__(self, source: str = "infer") -> None:
+        if source not in SOURCES:
+            raise ValueError(f"shift cannot cluster stage {source!r}; sources are {SOURCES}")
+        self.source = source
+        self.upstream = (source,)
+
     def plan(self, ctx: StageContext) -> Plan:
-        infer = ctx.manifest("infer")
+        infer = ctx.manifest(self.source)
         cfg = effective_clusterer(ctx.config, volume_scans(ctx))
         dynamic = isinstance(cfg, DynamicShiftConfig)
         return Plan(
@@ -134,7 +145,7 @@ class ShiftStage(Stage):
         clusterer = get_clusterer(cfg, weights)
         thing_lut = ctx.label_map.is_thing()
         align = ctx.arrays("align")
-        infer = ctx.arrays("infer")
+        infer = ctx.arrays(self.source)
         for item in items:
             xyz = align.read_item(item, ["points"])["points"][:, :3]
             inf = infer.read_item(item, ["sem", "offsets", "features"])

@@ -90,3 +90,35 @@ def make_most_checkpoint(path: Path, seed: int = 0, cars: bool = False) -> Path:
             last.bias += 3.0  # PointSegMLP: most RoI points are members
     save_most_checkpoint(path, net, card)
     return Path(path)
+
+
+def make_dpls_checkpoint(path: Path, seed: int = 0) -> Path:
+    """Write a random-weight D-PLS checkpoint (seeded, :data:`TEST_CONFIG` with the 20-class prior input
+    and no semantic head; with random shifting MLPs)."""
+    from dsnet_core.model.dpls import dpls_config
+
+    torch.manual_seed(seed)
+    model = DSNet(dpls_config(TEST_CONFIG))
+    card = ModelCard(
+        architecture={},
+        class_map=class_map_of(load_label_map("semantic-kitti")),
+        training_data={"method": "dpls", "note": f"random weights, seed {seed}: wiring tests only"},
+        code_version="test",
+    )
+    save_checkpoint(path, model, card)
+    save_shift_weights(path, DynamicShift().eval())
+    return Path(path)
+
+
+def write_gt_prior(log: Path, out: Path, sequence: str = "00", layout: str = "predictions") -> Path:
+    """The ground-truth labels of ``log``'s ``sequence`` written as prior files (``.label``) under
+    ``out`` in one of the layouts :mod:`dsnet_core.io.prior` reads: ``predictions``
+    (``out/sequences/SEQ/predictions/ID.label``) or ``flat`` (``out/SEQ/ID.label``)."""
+    import shutil
+
+    src = Path(log) / "sequences" / sequence / "labels"
+    dst = out / "sequences" / sequence / "predictions" if layout == "predictions" else out / sequence
+    dst.mkdir(parents=True, exist_ok=True)
+    for f in sorted(src.glob("*.label")):
+        shutil.copyfile(f, dst / f.name)
+    return out

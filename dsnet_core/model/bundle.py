@@ -34,6 +34,7 @@ BUNDLED_NAME = "tiny"
 BUNDLED_4D_NAME = "tiny-4d"
 #: bundled MOST models: the accumulated-input one (k = 3) and, when present, a single-scan one
 BUNDLED_MOST_NAMES = {3: "most", 1: "most-1"}
+BUNDLED_DPLS_NAME = "dpls"
 
 
 def bundled_dir(scans: int = 1) -> Path:
@@ -83,6 +84,32 @@ def resolve_checkpoint(path: str | Path | None, scans: int = 1) -> Path:
         return found
     path = Path(path).expanduser()
     read_card(path)  # typed error naming the file when it is not a checkpoint
+    return path
+
+
+def bundled_dpls_checkpoint() -> Path | None:
+    """The bundled D-PLS instance network (``dsnet_core/data/models/dpls/``), or None when absent."""
+    path = bundled_dir().parent / BUNDLED_DPLS_NAME
+    return path if _is_checkpoint(path) else None
+
+
+def resolve_dpls_checkpoint(path: str | Path | None) -> Path:
+    """``path`` (a D-PLS checkpoint folder), or the bundled D-PLS model when None.
+
+    Raises:
+        CheckpointError: None given and no bundled D-PLS model, or ``path`` holds no model card.
+    """
+    if path is None:
+        found = bundled_dpls_checkpoint()
+        if found is None:
+            raise CheckpointError(
+                bundled_dir().parent / BUNDLED_DPLS_NAME,
+                "no bundled D-PLS model: pass a D-PLS checkpoint (dsnet label --method dpls --checkpoint "
+                "PATH; train one with dsnet train --method dpls)",
+            )
+        return found
+    path = Path(path).expanduser()
+    read_card(path)
     return path
 
 

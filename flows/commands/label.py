@@ -32,8 +32,8 @@ def label(
         None,
         min=1,
         max=16,
-        help="k: scans per 4D volume for dsnet (1 = 3D, default 2); for most the current scan plus k-1 "
-        "past scans (default 3).",
+        help="k: scans per 4D volume for dsnet and dpls (1 = 3D, default 2); for most the current scan "
+        "plus k-1 past scans (default 3).",
     ),
     stride: int = typer.Option(None, min=1, help="Step between volumes (default k-1, or 1 for k=1)."),
     checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled demo model)."),
@@ -77,9 +77,22 @@ def label(
     equivariant: int = typer.Option(
         None, "--equivariant", min=1, help="Require a C_n-equivariant checkpoint trained with this n."
     ),
+    semantic_prior: str = typer.Option(
+        None,
+        "--semantic-prior",
+        help="dpls: folder of per-scan semantic predictions of any network (DIR/sequences/SEQ/predictions/"
+        "ID.label or .npy, or DIR/SEQ/ID.label|.npy); default: the bundled model's semantics.",
+    ),
+    prior_label_map: str = typer.Option(
+        None,
+        "--prior-label-map",
+        help="dpls: label map of the --semantic-prior files, a bundled name or a YAML "
+        "(default semantic-kitti).",
+    ),
 ) -> None:
     """Label a log into a run store (dsnet: ingest → align → infer → shift → fuse → stitch|track →
-    score; most: ingest → align → most → track → score), resuming whatever is already done there."""
+    score; most: ingest → align → most → track → score; dpls: ingest → align → prior → dpls → shift →
+    fuse → stitch|track → score), resuming whatever is already done there."""
     if on_error not in ("fail", "skip"):
         raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
     if workers and dask_address:
@@ -109,6 +122,8 @@ def label(
                 tta_flip,
                 equivariant,
                 method,
+                semantic_prior,
+                prior_label_map,
             ),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
             from_stage=from_stage,

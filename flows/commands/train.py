@@ -55,7 +55,10 @@ def train(
     data: Path = typer.Argument(None, help="Training log root (SemanticKITTI layout); none with --stream."),
     out: Path = typer.Option(..., "--out", help="Checkpoint folder (written every epoch)."),
     method: str = typer.Option(
-        "dsnet", "--method", help="dsnet (DS-Net / 4D-DS-Net) or most (detect → member stages)."
+        "dsnet",
+        "--method",
+        help="dsnet (DS-Net / 4D-DS-Net), most (detect → member stages) or dpls (D-PLS's prior-conditioned "
+        "instance network from --init-from, default the bundled model, on corrupted ground-truth priors).",
     ),
     stage: str = typer.Option("all", help="semantic | offset | shift | all (most: detect | member | all)"),
     scans: int = typer.Option(
@@ -117,13 +120,14 @@ def train(
     stream_sensors: str = typer.Option(None, help="--stream: sensors to draw from (default: all)."),
     stream_workers: int = typer.Option(1, min=0, help="--stream: background render processes."),
 ) -> None:
-    """Train DS-Net (semantic → instance head → shifting) or MOST (``--method most``: detection,
-    segmentation and velocity → PointSegMLP) and write a checkpoint with a model card.
+    """Train DS-Net (semantic → instance head → shifting), MOST (``--method most``: detection,
+    segmentation and velocity → PointSegMLP) or D-PLS's instance network (``--method dpls``) and
+    write a checkpoint with a model card.
 
     DS-Net trains data-parallel under torchrun: ``torchrun --nproc_per_node 2 -m flows.cli train DATA
     --out CKPT --device cuda`` (``--batch-size`` is per process)."""
-    if method not in ("dsnet", "most"):
-        raise typer.BadParameter(f"--method must be dsnet or most, not {method!r}")
+    if method not in ("dsnet", "most", "dpls"):
+        raise typer.BadParameter(f"--method must be dsnet, most or dpls, not {method!r}")
     if (data is None) == (stream == 0):
         fail("give a training log (DATA) or --stream N, not both or neither")
     if stream and (val_data is None or holdout):
@@ -149,6 +153,28 @@ def train(
             data, out, stage, scans, epochs, device, resume, init_from, preset, grid, sequences, val_data,
             val_sequences, lr, seed, augment, threads, refused,
         )  # fmt: skip
+    if method == "dpls":
+        import os
+
+        if int(os.environ.get("WORLD_SIZE", "1")) > 1:  # every process would write the checkpoint
+            fail("--method dpls trains in one process: run it without torchrun (or --nproc_per_node 1)")
+        refused = {
+            "--stream": stream != 0,
+            "--stage": stage != "all",
+            "--freeze-backbone": freeze_backbone,
+            "--holdout": holdout != 0.0,
+            "--patience": patience != 0,
+            "--amp": amp != "off",
+            "--equivariant": equivariant != 1,
+            "--batch-size": batch_size != 1,
+            "--grid": grid is not None,
+        }
+        bad = [flag for flag, given in refused.items() if given]
+        if bad:
+            fail(f"{', '.join(bad)}: not a setting of dsnet train --method dpls")
+        _train_dpls(data, out, epochs, device, resume, init_from, sequences, val_data, val_sequences, lr,
+                    scans, seed, augment, threads)  # fmt: skip
+        return
     scans = scans or 1
     import logging
     from dataclasses import replace
@@ -236,3 +262,42 @@ def train(
     miou = card.metrics[-1]["val_miou"] if card.metrics else float("nan")
     typer.echo(f"wrote checkpoint {out.resolve()} (epochs {card.epochs}, val mIoU {miou:.4f})")
     typer.echo(f"metrics table: {out.resolve() / 'metrics.csv'}")
+
+
+def _train_dpls(data, out, epochs, device, resume, init_from, sequences, val_data, val_sequences, lr,
+                scans, seed, augment, threads) -> None:  # fmt: skip
+    """``dsnet train --method dpls`` (:class:`dsnet_core.train.dpls.DplsTrainer`)."""
+    import logging
+
+    import torch
+
+    from dsnet_core.errors import DsnetError
+    from dsnet_core.io.formats import open_log
+    from dsnet_core.labels import load_label_map
+    from dsnet_core.model.bundle import bundled_checkpoint
+    from dsnet_core.train.dpls import DplsTrainConfig, DplsTrainer
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+    torch.set_num_threads(threads)
+    if "=" in epochs:
+        raise typer.BadParameter("--method dpls trains one stage: --epochs N")
+    try:
+        label_map = load_label_map("semantic-kitti")
+        reader = open_log(data, options={"label_map": label_map})
+        seqs = sequences.split(",") if sequences else reader.sequences()
+        val_reader = open_log(val_data, options={"label_map": label_map}) if val_data else reader
+        vseqs = val_sequences.split(",") if val_sequences else (val_reader.sequences() if val_data else seqs)
+        cfg = DplsTrainConfig(
+            epochs=int(epochs), lr=lr, scans=scans, seed=seed, augment=augment, device=device
+        )
+        start = init_from or bundled_checkpoint(1)
+        trainer = DplsTrainer(out, reader, seqs, val_reader, vseqs, label_map, cfg, start, resume)
+        card = trainer.run()
+    except DsnetError as exc:
+        fail(exc)
+    last = card.metrics[-1] if card.metrics else {}
+    typer.echo(
+        f"wrote checkpoint {out.resolve()} (epochs {card.epochs}, val offset L1 clean "
+        f"{last.get('val_offset_l1_clean', float('nan')):.3f} m, corrupted prior "
+        f"{last.get('val_offset_l1_corrupted', float('nan')):.3f} m)"
+    )

@@ -20,13 +20,20 @@ from tasks.pipeline import Pipeline
 NEEDED = ("align", "infer", "fuse")  # and the labels stage; stitch's link IoUs where it is that stage
 
 
+def _needed(pipeline: Pipeline) -> tuple[str, ...]:
+    """:data:`NEEDED` with the stage fuse reads in place of ``infer`` (``dpls`` for D-PLS)."""
+    source = getattr(pipeline["fuse"], "source", "infer") if "fuse" in pipeline else "infer"
+    return tuple(source if n == "infer" else n for n in NEEDED)
+
+
 def frame_confidence_rows(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> list[dict[str, Any]]:
     """Rows (sequence, index, frame_id, the four terms, score, instances, points), lowest score first."""
-    if any(name not in pipeline.names() for name in (*NEEDED, "ingest")):
+    needed = _needed(pipeline)
+    if any(name not in pipeline.names() for name in (*needed, "ingest")):
         return []
     rows = []
     for seq in sequences:
-        manifests = [store.read_manifest(seq, s) for s in (*NEEDED, pipeline.labels)]
+        manifests = [store.read_manifest(seq, s) for s in (*needed, pipeline.labels)]
         if any(m is None or m.status != "done" for m in manifests):
             continue
         rows += _sequence_rows(store, pipeline, seq)
@@ -51,7 +58,7 @@ def _sequence_rows(store: RunStore, pipeline: Pipeline, seq: str) -> list[dict[s
             for f in fr:
                 links.setdefault(int(f), []).append(math.nan if iou is None else float(iou))
     align = store.arrays(seq, pipeline["align"].contract)
-    infer = store.arrays(seq, pipeline["infer"].contract)
+    infer = store.arrays(seq, pipeline[_needed(pipeline)[1]].contract)
     fuse = store.arrays(seq, pipeline["fuse"].contract)
     owned: set[int] = set()
     rows = []

@@ -1,0 +1,296 @@
+"""Training D-PLS's prior-conditioned instance network (``dsnet train --method dpls``).
+
+The network (:mod:`dsnet_core.model.dpls`) starts from a trained DS-Net checkpoint (its offsets
+exactly, the prior's input columns at zero) and trains everything but a semantic head it does not
+have: point MLP, U-Net and instance head. The loss is the paper's Huber loss between predicted and
+ground-truth centres, masked to thing points (the prior masks nothing inside the network). The
+prior each step sees is ground truth corrupted realistically (:mod:`dsnet_core.train.prior_noise`):
+segment-level class confusions drawn from the starting model's confusion matrix on the validation
+data, scaled per sample between clean and harsher, plus blob errors at class boundaries.
+
+Checkpoints every epoch (weights, card, optimiser state, committed together); ``resume``
+continues after the last completed epoch with the same per-epoch seeds.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dsnet_core.errors import ConfigError
+from dsnet_core.io.reader import LogReader
+from dsnet_core.labels import LabelMap, class_map_of
+from dsnet_core.model.bundle import SHIFT_WEIGHTS
+from dsnet_core.model.checkpoint import CARD, ModelCard, code_version, load_checkpoint, save_checkpoint
+from dsnet_core.model.dpls import dpls_config, init_from_semantic, is_dpls, one_hot
+from dsnet_core.model.losses import instance_centres
+from dsnet_core.model.network import DSNet
+from dsnet_core.train import commit
+from dsnet_core.train.data import augment, class_counts, data_fingerprint, load_sample, volume_refs
+from dsnet_core.train.prior_noise import PriorNoise, corrupt_prior, normalise_confusion
+from dsnet_core.train.state import load_train_state, save_train_state
+
+log = logging.getLogger(__name__)
+STAGE = "dpls"
+
+
+@dataclass
+class DplsTrainConfig:
+    """D-PLS's schedule.
+
+    Attributes:
+        epochs: passes over the training volumes.
+        lr: Adam learning rate, cosine per epoch down to ``min_lr_ratio · lr``.
+        scans: k, scans per 4D volume (the prior is aggregated with the points).
+        seed: seeds shuffling, augmentation and corruption per epoch.
+        augment: yaw/flip/scale/translation augmentation.
+        device: torch device.
+        huber_delta: the Huber loss's transition, metres.
+        strength: (min, max) per-sample scale of the confusion matrix's errors.
+        blobs_per_100k: boundary blobs per 100 000 points.
+    """
+
+    epochs: int = 6
+    lr: float = 1e-3
+    scans: int = 1
+    seed: int = 0
+    augment: bool = True
+    device: str = "cpu"
+    min_lr_ratio: float = 0.05
+    huber_delta: float = 1.0
+    strength: tuple[float, float] = (0.0, 1.5)
+    blobs_per_100k: float = 20.0
+
+    def epoch_lr(self, epoch: int) -> float:
+        if self.epochs <= 1:
+            return self.lr
+        floor = self.lr * self.min_lr_ratio
+        return floor + 0.5 * (self.lr - floor) * (1.0 + math.cos(math.pi * epoch / (self.epochs - 1)))
+
+
+def centre_loss(offsets, xyz, centres, valid, delta: float) -> torch.Tensor:
+    """Huber loss between predicted centres ``xyz + offsets`` and ``centres``, summed over x, y, z and
+    averaged over the ``valid`` (thing) points; 0 without any."""
+    if not bool(valid.any()):
+        return offsets.sum() * 0.0
+    pred = xyz[valid] + offsets[valid]
+    return torch.nn.functional.huber_loss(pred, centres[valid], delta=delta, reduction="none").sum(1).mean()
+
+
+class DplsTrainer:
+    """Trains a D-PLS instance network.
+
+    Args:
+        out: checkpoint folder (written every epoch).
+        reader, sequences: training data; val_reader, val_sequences: validation data.
+        label_map: the class map (the starting checkpoint's must equal it).
+        config: the schedule.
+        init_from: a trained DS-Net checkpoint to start from (required for a new ``out``).
+        resume: continue the checkpoint in ``out``.
+        confusion: ``(C, C)`` confusion matrix of the corruption; None measures ``init_from``'s on the
+            validation volumes.
+    """
+
+    def __init__(
+        self,
+        out: str | Path,
+        reader: LogReader,
+        sequences: list[str],
+        val_reader: LogReader,
+        val_sequences: list[str],
+        label_map: LabelMap,
+        config: DplsTrainConfig,
+        init_from: str | Path | None = None,
+        resume: bool = False,
+        confusion: np.ndarray | None = None,
+    ) -> None:
+        self.out, self.cfg, self.label_map = Path(out), config, label_map
+        self.device = torch.device(config.device)
+        self.reader, self.val_reader = reader, val_reader
+        self.train_vols = volume_refs(reader, sequences, config.scans)
+        self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
+        if not self.train_vols:
+            raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
+        commit.recover(self.out)
+        exists = (self.out / CARD).is_file()
+        if exists and not resume:
+            raise ConfigError(
+                f"{self.out} already holds a checkpoint: pass --resume, or choose another --out"
+            )
+        if exists:
+            self.model, self.card = load_checkpoint(self.out, self.device, expect_label_map=label_map)
+            if not is_dpls(self.model.config):
+                raise ConfigError(
+                    f"{self.out} holds a DS-Net checkpoint, not a D-PLS one: choose another --out"
+                )
+            confusion = np.asarray(self.card.training_data["prior_noise"]["confusion"])
+        else:
+            if init_from is None:
+                raise ConfigError("dsnet train --method dpls starts from a trained DS-Net: pass --init-from")
+            self.model, confusion = self._start(init_from, label_map, confusion)
+        self.noise = PriorNoise(confusion, strength=config.strength, blobs_per_100k=config.blobs_per_100k)
+        self.card.training_data["train_config"] = asdict(config)
+        self.card.code_version = code_version()
+
+    def _start(self, init_from, label_map: LabelMap, confusion) -> tuple[DSNet, np.ndarray]:
+        source, parent = load_checkpoint(init_from, self.device, expect_label_map=label_map)
+        torch.manual_seed(self.cfg.seed)
+        model = DSNet(dpls_config(source.config)).to(self.device)
+        fresh = init_from_semantic(model, source)
+        measured = confusion is None
+        if measured:
+            confusion = measure_confusion(source, self.val_reader, self.val_vols, label_map, self.device)
+        self.out.mkdir(parents=True, exist_ok=True)
+        if (Path(init_from) / SHIFT_WEIGHTS).is_file():  # its features start as the parent's
+            shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
+        self.card = ModelCard(
+            architecture=model.config.to_dict(),
+            class_map=class_map_of(label_map),
+            training_data={
+                "method": "dpls",
+                "root": str(self.reader.root),
+                "volumes": len(self.train_vols),
+                "scans": self.cfg.scans,
+                "fingerprint": data_fingerprint(self.reader, self.train_vols),
+                "class_points": class_counts(self.reader, self.train_vols, label_map).tolist(),
+                "val_root": str(self.val_reader.root),
+                "init_from": {
+                    "path": str(Path(init_from).resolve()),
+                    "weights_sha256": parent.weights_sha256,
+                    "fresh_parameters": fresh,
+                },
+                "prior_noise": {
+                    "confusion": np.round(confusion, 6).tolist(),
+                    "confusion_source": "init_from on the validation volumes" if measured else "given",
+                },
+            },
+            epochs={},
+            metrics=[],
+        )
+        return model, confusion
+
+    def run(self, on_step=None) -> ModelCard:
+        """Train every pending epoch; returns the final card."""
+        opt = torch.optim.Adam(self.model.parameters(), lr=self.cfg.lr)
+        done = self.card.epochs.get(STAGE, 0)
+        if load_train_state(self.out, opt, {"stage": STAGE, "epochs": done}):
+            log.info("restored optimiser state of epoch %d", done)
+        if done == 0 and not self.card.metrics:
+            self.card.metrics.append({"stage": STAGE, "epoch": 0, **self.validate()})
+        for epoch in range(done, self.cfg.epochs):
+            t0 = time.perf_counter()
+            for group in opt.param_groups:
+                group["lr"] = self.cfg.epoch_lr(epoch)
+            loss = self._train_epoch(epoch, opt, on_step)
+            record = {"stage": STAGE, "epoch": epoch + 1, "train_loss": loss, **self.validate()}
+            record["lr"] = self.cfg.epoch_lr(epoch)
+            record["seconds"] = round(time.perf_counter() - t0, 2)
+            self.card.metrics.append(record)
+            self.card.epochs[STAGE] = epoch + 1
+            self._save(epoch + 1, opt)
+            log.info("dpls epoch %d: loss %.4f, %s", epoch + 1, loss, record)
+        return self.card
+
+    def _train_epoch(self, epoch: int, opt, on_step) -> float:
+        rng = np.random.default_rng([self.cfg.seed, 7, epoch])
+        torch.manual_seed(int(rng.integers(2**31)))
+        order = rng.permutation(len(self.train_vols))
+        self.model.train()
+        losses = []
+        for step, i in enumerate(order):
+            s = load_sample(self.reader, self.train_vols[i], self.label_map)
+            pts = augment(s.points, rng) if self.cfg.augment else s.points
+            prior = corrupt_prior(pts[:, :3], s.sem, s.inst, self.noise, rng)
+            loss = self._loss(pts, prior, s.inst, s.thing)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            losses.append(float(loss.detach()))
+            if on_step is not None:
+                on_step(STAGE, epoch + 1, step + 1, len(order), losses[-1])
+            if (step + 1) % 25 == 0:
+                log.info(
+                    "dpls epoch %d step %d/%d: loss %.4f",
+                    epoch + 1,
+                    step + 1,
+                    len(order),
+                    np.mean(losses[-25:]),
+                )
+        return float(np.mean(losses))
+
+    def _loss(self, pts: np.ndarray, prior: np.ndarray, inst: np.ndarray, thing: np.ndarray) -> torch.Tensor:
+        cloud = torch.from_numpy(np.ascontiguousarray(pts)).to(self.device)
+        out = self.model([cloud], priors=[one_hot(prior, self.model.config.prior_channels).to(self.device)])
+        xyz = cloud[:, :3]
+        valid = torch.from_numpy(thing).to(self.device)
+        centres = instance_centres(xyz, torch.from_numpy(inst).to(self.device), valid)
+        return centre_loss(out.offsets, xyz, centres, valid, self.cfg.huber_delta)
+
+    def validate(self) -> dict:
+        """Mean L1 centre error (metres) over thing points of the validation volumes, with the clean
+        ground-truth prior and with a corrupted one (seeded, the same every epoch)."""
+        self.model.eval()
+        rng = np.random.default_rng([self.cfg.seed, 99])
+        sums = {"clean": 0.0, "corrupted": 0.0}
+        n = 0
+        c = self.model.config.prior_channels
+        with torch.inference_mode():
+            for refs in self.val_vols:
+                s = load_sample(self.val_reader, refs, self.label_map)
+                if not s.thing.any():
+                    continue
+                pts = torch.from_numpy(s.points).to(self.device)
+                valid = torch.from_numpy(s.thing).to(self.device)
+                centres = instance_centres(pts[:, :3], torch.from_numpy(s.inst).to(self.device), valid)
+                target = (centres - pts[:, :3])[valid]
+                noisy = corrupt_prior(s.points[:, :3], s.sem, s.inst, self.noise, rng)
+                for key, prior in (("clean", s.sem), ("corrupted", noisy)):
+                    out = self.model([pts], priors=[one_hot(prior, c).to(self.device)])
+                    sums[key] += float((out.offsets[valid] - target).abs().sum())
+                n += int(valid.sum())
+        return {f"val_offset_l1_{k}": v / n if n else float("nan") for k, v in sums.items()}
+
+    def _save(self, epochs_done: int, opt) -> None:
+        staging = commit.begin(self.out)
+        save_train_state(staging, opt, {"stage": STAGE, "epochs": epochs_done})
+        if (self.out / SHIFT_WEIGHTS).is_file():
+            shutil.copyfile(self.out / SHIFT_WEIGHTS, staging / SHIFT_WEIGHTS)
+        save_checkpoint(staging, self.model, self.card)
+        write_metrics_csv(staging, self.card.metrics)
+        commit.commit(self.out)
+
+
+METRIC_COLUMNS = ("epoch", "lr", "train_loss", "val_offset_l1_clean", "val_offset_l1_corrupted", "seconds")
+
+
+def write_metrics_csv(out: Path, metrics: list[dict]) -> None:
+    """``metrics.json`` (the records) and ``metrics.csv`` (:data:`METRIC_COLUMNS`) beside the checkpoint."""
+    import csv
+    import json
+
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    with open(out / "metrics.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(metrics)
+
+
+def measure_confusion(model: DSNet, reader: LogReader, volumes, label_map: LabelMap, device) -> np.ndarray:
+    """Row-normalised ``(C, C)`` confusion of a semantic model's predictions on ``volumes``."""
+    c = label_map.num_classes
+    counts = np.zeros((c, c), np.int64)
+    model.eval()
+    with torch.inference_mode():
+        for refs in volumes:
+            s = load_sample(reader, refs, label_map)
+            out = model([torch.from_numpy(s.points).to(device)], instance=False)
+            pred = (out.logits[:, 1:].argmax(1) + 1).cpu().numpy()
+            counts += np.bincount(s.sem * c + pred, minlength=c * c).reshape(c, c)
+    return normalise_confusion(counts)

@@ -98,9 +98,7 @@ def main() -> None:
         res = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads([x for x in res.stdout.splitlines() if x.startswith("ROW ")][-1][4:]))
     base = rows[0]
-    print(
-        f"C_n lifting, preset {args.preset}, {base['points']} points, one thread (ratios: n = {base['n']})"
-    )
+    print(f"C_n lifting, preset {args.preset}, {base['points']} points, one thread (ratios: n = {base['n']})")
     head = "| n | forward s | × | peak RSS MB | × |" + (" train step s | × |" if args.train else "")
     print(head)
     print("|" + "---|" * (head.count("|") - 1))

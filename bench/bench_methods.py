@@ -51,6 +51,8 @@ class Row:
     options: dict[str, Any] = field(default_factory=dict)  # the method's options (temporal)
     settings: dict[str, Any] = field(default_factory=dict)  # stage_settings keywords
     stages: dict[str, dict[str, Any]] = field(default_factory=dict)  # extra per-stage overrides
+    checkpoint: str | None = None  # key of --checkpoint-KEY (default: the method's)
+    prior: float | str | None = None  # D-PLS prior from ground truth: "gt", or a target mIoU
 
 
 ROWS: dict[str, Row] = {
@@ -63,6 +65,26 @@ ROWS: dict[str, Row] = {
     "dsnet-k1-tta2": Row("DS-Net k=1 + track, --tta 2", "dsnet", 1, {"temporal": "track"}, {"tta": 2}),
     "dsnet-k1-tta4": Row("DS-Net k=1 + track, --tta 4", "dsnet", 1, {"temporal": "track"}, {"tta": 4}),
     "dsnet-k1-tta8": Row("DS-Net k=1 + track, --tta 8", "dsnet", 1, {"temporal": "track"}, {"tta": 8}),
+    "eq4-k1-track": Row(
+        "Eq-4D n=4 (tiny lifted, instance head 1 epoch) k=1 + track",
+        "dsnet",
+        1,
+        {"temporal": "track"},
+        {"equivariant": 4},
+        checkpoint="eq4",
+    ),
+    "dpls-k2-model": Row(
+        "D-PLS k=2 + stitch, prior: bundled DS-Net semantics", "dpls", 2, {"temporal": "stitch"}
+    ),
+    "dpls-k2-gt": Row(
+        "D-PLS k=2 + stitch, prior: ground truth", "dpls", 2, {"temporal": "stitch"}, prior="gt"
+    ),
+    "dpls-k2-gt0.8": Row(
+        "D-PLS k=2 + stitch, prior: GT corrupted to mIoU 0.8", "dpls", 2, {"temporal": "stitch"}, prior=0.8
+    ),
+    "dpls-k2-gt0.6": Row(
+        "D-PLS k=2 + stitch, prior: GT corrupted to mIoU 0.6", "dpls", 2, {"temporal": "stitch"}, prior=0.6
+    ),
     "most-k3-distance": Row(
         "MOST k=3 + track, distance memberships", "most", 3, stages={"most": {"rule": "distance"}}
     ),
@@ -94,7 +116,9 @@ def request_of(row: Row, data: Path, store: Path, seqs: list[str], checkpoints: 
     """The :class:`~flows.request.LabelRequest` ``dsnet label`` would build for ``row``."""
     from flows.request import LabelRequest, stage_settings
 
-    settings = {"checkpoint": checkpoints.get(row.method), **row.settings}
+    settings = {"checkpoint": checkpoints.get(row.checkpoint or row.method), **row.settings}
+    if row.prior is not None:
+        settings["semantic_prior"] = str(prior_dir(store.parent, row.prior))
     stages = stage_settings(row.scans, method=row.method, **settings)
     for name, over in row.stages.items():
         stages[name] = {**stages.get(name, {}), **over}
@@ -106,6 +130,11 @@ def request_of(row: Row, data: Path, store: Path, seqs: list[str], checkpoints: 
         method_options=row.options,
         stages=stages,
     )
+
+
+def prior_dir(out: Path, prior: float | str) -> Path:
+    """Where the prior files of a D-PLS row live (written by the parent before the row runs)."""
+    return out / "priors" / (str(prior) if prior == "gt" else f"gt-miou{prior:g}")
 
 
 def label_row(key: str, data: Path, store: Path, seqs: list[str], checkpoints: dict, force: bool) -> dict:
@@ -244,6 +273,8 @@ def main() -> None:
     ap.add_argument("--first-sequence", type=int, default=60)
     ap.add_argument("--checkpoint-dsnet", default=None, help="DS-Net checkpoint (default: the bundled ones)")
     ap.add_argument("--checkpoint-most", default=None, help="MOST checkpoint (default: the bundled one)")
+    ap.add_argument("--checkpoint-dpls", default=None, help="D-PLS checkpoint (default: the bundled one)")
+    ap.add_argument("--checkpoint-eq4", default=None, help="C_4 DS-Net checkpoint (the eq4 rows need it)")
     ap.add_argument(
         "--yaw", type=float, default=None, help="label a copy of the log turned by this yaw (deg)"
     )
@@ -255,7 +286,12 @@ def main() -> None:
             print(f"{key:24s} {row.title}")
         return
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    checkpoints = {"dsnet": args.checkpoint_dsnet, "most": args.checkpoint_most}
+    checkpoints = {
+        "dsnet": args.checkpoint_dsnet,
+        "most": args.checkpoint_most,
+        "dpls": args.checkpoint_dpls,
+        "eq4": args.checkpoint_eq4,
+    }
     checkpoints = {m: str(Path(c).resolve()) if c else None for m, c in checkpoints.items()}
     if args.data is None:
         data = args.out / "log"
@@ -286,6 +322,14 @@ def main() -> None:
     n_frames = sum(len(reader.frames(s)) for s in seqs)
     results: dict[str, dict] = {}
     for key in keys:
+        row = ROWS[key]
+        if row.checkpoint and not checkpoints.get(row.checkpoint):
+            raise SystemExit(f"row {key} needs --checkpoint-{row.checkpoint}")
+        if row.prior is not None:
+            from _priors import write_prior
+
+            rec = write_prior(data, prior_dir(args.out, row.prior), None if row.prior == "gt" else row.prior)
+            print(f"{row.title}: prior mIoU {rec['miou']:.3f} (confusion scale {rec['scale']:.3f})")
         cmd = [sys.executable, __file__, "--out", str(args.out), "--row", key, "--data", str(data)]
         cmd += ["--sequences", ",".join(seqs)]
         for m, c in checkpoints.items():

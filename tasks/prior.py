@@ -36,14 +36,15 @@ class PriorConfig(StageConfig):
     Attributes:
         source: ``user`` (files under ``path``) or ``model`` (a DS-Net checkpoint's semantics).
         path: the folder of the user's prior files (``dsnet label --semantic-prior DIR``).
-        label_map: the user files' label map: a bundled name or a YAML file (``--prior-label-map``).
+        label_map: the user files' label map: a bundled name or a YAML file (``--prior-label-map``);
+            None = the log's own ground-truth label map (its reader's).
         checkpoint: ``model`` source: a DS-Net checkpoint folder; None = the bundled single-scan model.
         device: ``model`` source: torch device.
     """
 
     source: Literal["user", "model"] = "model"
     path: str | None = None
-    label_map: str = "semantic-kitti"
+    label_map: str | None = None
     checkpoint: str | None = None
     device: str = "cpu"
 
@@ -91,7 +92,7 @@ class PriorStage(Stage):
         return "prior-files:" + h.hexdigest()
 
     def plan(self, ctx: StageContext) -> Plan:
-        from dsnet_core.labels import class_map_of, load_label_map
+        from dsnet_core.labels import class_map_of
 
         align = ctx.manifest("align")
         meta: dict = {}
@@ -104,7 +105,7 @@ class PriorStage(Stage):
             meta = {"checkpoint": str(path), CLASS_MAP: card.class_map}
             classes = card.config.num_classes
         else:
-            label_map = load_label_map(ctx.config.label_map)
+            label_map = _files_label_map(ctx)
             meta = {CLASS_MAP: class_map_of(label_map)}
             classes = label_map.num_classes
         return Plan(
@@ -152,9 +153,7 @@ class PriorStage(Stage):
         row = {int(i): r for r, i in enumerate(frames["index"])}
         if ctx.config.source == "user":
             from dsnet_core.io.prior import find_prior, read_prior
-            from dsnet_core.labels import load_label_map
-
-            label_map = load_label_map(ctx.config.label_map)
+            label_map = _files_label_map(ctx)
 
             def from_file(f: int) -> np.ndarray:
                 r = row[f]
@@ -177,3 +176,22 @@ class PriorStage(Stage):
             return predictor.predict(reader.scan(refs[f])).probs.astype(np.float32)
 
         return from_model
+
+
+def _files_label_map(ctx: StageContext):
+    """The label map of the user's prior files: the configured one, else the log's own.
+
+    Raises:
+        ConfigError: none configured and the log's format has no label map.
+    """
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.labels import load_label_map
+
+    if ctx.config.label_map is not None:
+        return load_label_map(ctx.config.label_map)
+    if ctx.reader.label_map is None:
+        raise ConfigError(
+            f"the log {ctx.run['data']} has no label map of its own: name the prior files' one "
+            "(--prior-label-map NAME|YAML)"
+        )
+    return ctx.reader.label_map

@@ -200,26 +200,3 @@ def equivariant_offset_loss(
     pred = offsets[valid][rows, anchor]
     l1 = (pred - local_target).abs().sum(dim=1).mean()
     return l1 + score_weight * F.cross_entropy(scores[valid], anchor)
-
-
-def lift_model(model: torch.nn.Module, n: int, pooling: str = "mean") -> torch.nn.Module:
-    """A plain trained DS-Net lifted to C_n: the same weights shared by the n rotated copies (its
-    semantics start as the mean (or max) over n rotations, i.e. ``--tta n`` without flips), and a
-    fresh anchor scorer (eq. 9) for the offsets, to be fine-tuned (``dsnet train --init-from PLAIN
-    --equivariant n``).
-
-    Raises:
-        ConfigError: ``model`` is already equivariant, or its grid does not allow n.
-    """
-    from dataclasses import replace
-
-    from dsnet_core.model.network import DSNet
-
-    if model.config.equivariant != 1:
-        raise ConfigError(f"--equivariant {n}: the --init-from model is already C_{model.config.equivariant}")
-    lifted = DSNet(replace(model.config, equivariant=n, pooling=pooling)).to(next(model.parameters()).device)
-    missing, unexpected = lifted.load_state_dict(model.state_dict(), strict=False)
-    fresh = [k for k in missing if not k.startswith("anchor_head.")]
-    if fresh or unexpected:  # only the anchor scorer is new
-        raise ConfigError(f"cannot lift this model to C_{n}: missing {fresh}, unexpected {unexpected}")
-    return lifted

@@ -7,7 +7,7 @@ the C_n-equivariant network (``equivariant = n > 1``, :mod:`dsnet_core.model.equ
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
@@ -144,3 +144,22 @@ def _copy0_voxels(point_values: torch.Tensor, ptv0: torch.Tensor) -> torch.Tenso
 def count_parameters(module: nn.Module) -> int:
     """Number of trainable and frozen parameters."""
     return sum(p.numel() for p in module.parameters())
+
+
+def lift_model(model: torch.nn.Module, n: int, pooling: str = "mean") -> torch.nn.Module:
+    """A plain trained DS-Net lifted to C_n: the same weights shared by the n rotated copies (its
+    semantics start as the mean (or max) over n rotations, i.e. ``--tta n`` without flips), and a
+    fresh anchor scorer (eq. 9) for the offsets, to be fine-tuned (``dsnet train --init-from PLAIN
+    --equivariant n``).
+
+    Raises:
+        ConfigError: ``model`` is already equivariant, or its grid does not allow n.
+    """
+    if model.config.equivariant != 1:
+        raise ConfigError(f"--equivariant {n}: the --init-from model is already C_{model.config.equivariant}")
+    lifted = DSNet(replace(model.config, equivariant=n, pooling=pooling)).to(next(model.parameters()).device)
+    missing, unexpected = lifted.load_state_dict(model.state_dict(), strict=False)
+    fresh = [k for k in missing if not k.startswith("anchor_head.")]
+    if fresh or unexpected:  # only the anchor scorer is new
+        raise ConfigError(f"cannot lift this model to C_{n}: missing {fresh}, unexpected {unexpected}")
+    return lifted

@@ -36,7 +36,7 @@ from dsnet_core.model.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from dsnet_core.model.equivariant import equivariant_offset_loss, lift_model
+from dsnet_core.model.equivariant import equivariant_offset_loss
 from dsnet_core.model.losses import (
     class_weights,
     instance_centres,
@@ -44,7 +44,7 @@ from dsnet_core.model.losses import (
     semantic_loss,
     voxel_labels,
 )
-from dsnet_core.model.network import DSNet
+from dsnet_core.model.network import DSNet, lift_model
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.train import commit, distributed
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
@@ -163,7 +163,7 @@ class Trainer:
             architecture replaces ``model_config``; the new card starts with no epochs and records
             where it came from). Ignored when resuming an existing ``out``.
         lift: ``(n, pooling)``: lift the plain ``init_from`` model to C_n first
-            (:func:`~dsnet_core.model.equivariant.lift_model`).
+            (:func:`~dsnet_core.model.network.lift_model`).
     """
 
     def __init__(

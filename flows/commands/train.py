@@ -10,7 +10,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import fail
+from flows.commands.common import fail, with_grid
 
 
 def parse_epochs(text: str) -> dict[str, int]:
@@ -25,18 +25,6 @@ def parse_epochs(text: str) -> dict[str, int]:
             raise typer.BadParameter(f"unknown stage '{name}' in --epochs")
         out[name.strip()] = int(value)
     return out
-
-
-def with_grid(config, grid: str | None):
-    """``config`` (a :class:`~dsnet_core.model.presets.ModelConfig`) with ``--grid 'ρ,φ,z'`` cells."""
-    from dataclasses import replace
-
-    if not grid:
-        return config
-    cells = tuple(int(v) for v in grid.split(",") if v.strip().isdigit())
-    if len(cells) != 3:
-        raise typer.BadParameter(f"--grid wants three cell counts 'ρ,φ,z', got '{grid}'")
-    return replace(config, grid=replace(config.grid, size=cells))
 
 
 def stream_log(seed: int, scans: int, samples: int, styles: str | None, sensors: str | None, workers: int):

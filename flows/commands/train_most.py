@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import fail
+from flows.commands.common import fail, with_grid
 
 MOST_STAGES = ("detect", "member")
 
@@ -59,7 +59,6 @@ def train_most(
     from dsnet_core.model.presets import get_preset
     from dsnet_core.most.config import DEFAULT_SCANS, MostConfig
     from dsnet_core.train.most import MostTrainConfig, MostTrainer
-    from flows.commands.train import with_grid
 
     bad = [flag for flag, given in refused.items() if given]
     if bad:

@@ -173,7 +173,7 @@ def test_trainable_end_to_end():
 def test_a_lifted_plain_model_shares_its_weights_and_is_equivariant():
     """``lift_model``: the plain network's weights on every rotated copy (its semantics become their
     mean), a fresh anchor scorer, and the lifted network is equivariant as one trained lifted."""
-    from dsnet_core.model.equivariant import lift_model
+    from dsnet_core.model.network import lift_model
 
     plain = _net(1)
     lifted = lift_model(plain, 4).eval()

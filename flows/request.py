@@ -248,13 +248,11 @@ def stage_settings(
         ValueError: ``clusterer`` is neither a kind nor valid JSON, or a setting the method lacks.
     """
     if method != "dpls":
-        given = [
-            f for f, v in (("--semantic-prior", semantic_prior), ("--prior-label-map", prior_label_map)) if v
-        ]
-        if given:
-            raise ValueError(
-                f"{', '.join(given)}: not a setting of method {method} (it applies to --method dpls)"
-            )
+        _refuse(
+            method,
+            {"--semantic-prior": bool(semantic_prior), "--prior-label-map": bool(prior_label_map)},
+            "dpls",
+        )
     if method == "dpls":
         return _dpls_settings(
             scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip,
@@ -262,23 +260,11 @@ def stage_settings(
         )  # fmt: skip
     if method == "most":
         return _most_settings(
-            scans,
-            stride,
-            checkpoint,
-            clusterer,
-            estimate_poses,
-            max_points,
-            device,
-            tta,
-            tta_flip,
+            scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip,
             equivariant,
-        )
+        )  # fmt: skip
     stages: dict[str, dict[str, Any]] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
-    ingest = {"estimate_poses": True} if estimate_poses else {}
-    if max_points is not None:
-        ingest["max_points"] = max_points
-    if ingest:
-        stages["ingest"] = ingest
+    stages.update(_ingest_settings(estimate_poses, max_points))
     infer: dict[str, Any] = {}
     if checkpoint:
         infer["checkpoint"] = str(Path(checkpoint).expanduser().resolve())
@@ -293,6 +279,23 @@ def stage_settings(
     if clusterer:
         stages["shift"] = {"clusterer": _clusterer_config(clusterer)}
     return stages
+
+
+def _ingest_settings(estimate_poses: bool, max_points: int | None) -> dict[str, dict[str, Any]]:
+    """Ingest's settings of the command line (every method shares ingest)."""
+    ingest: dict[str, Any] = {"estimate_poses": True} if estimate_poses else {}
+    if max_points is not None:
+        ingest["max_points"] = max_points
+    return {"ingest": ingest} if ingest else {}
+
+
+def _refuse(method: str, refused: dict[str, bool], owner: str = "dsnet") -> None:
+    """Raise ValueError naming every given flag of ``refused`` (flags of another method)."""
+    bad = [flag for flag, given in refused.items() if given]
+    if bad:
+        raise ValueError(
+            f"{', '.join(bad)}: not a setting of method {method} (it applies to --method {owner})"
+        )
 
 
 def _clusterer_config(clusterer: str) -> dict[str, Any]:
@@ -318,20 +321,13 @@ def _dpls_settings(
     prior_label_map: str | None,
 ) -> dict[str, dict[str, Any]]:
     """:func:`stage_settings` for D-PLS (see there)."""
-    refused = {"--tta": tta != 1 or tta_flip, "--equivariant": equivariant is not None}
-    bad = [flag for flag, given in refused.items() if given]
-    if bad:
-        raise ValueError(f"{', '.join(bad)}: not a setting of method dpls (it applies to --method dsnet)")
+    _refuse("dpls", {"--tta": tta != 1 or tta_flip, "--equivariant": equivariant is not None})
     if prior_label_map and not semantic_prior:
         raise ValueError(
             "--prior-label-map: names the label map of --semantic-prior files; give --semantic-prior DIR"
         )
     stages: dict[str, dict[str, Any]] = {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
-    ingest: dict[str, Any] = {"estimate_poses": True} if estimate_poses else {}
-    if max_points is not None:
-        ingest["max_points"] = max_points
-    if ingest:
-        stages["ingest"] = ingest
+    stages.update(_ingest_settings(estimate_poses, max_points))
     prior: dict[str, Any] = {}
     if semantic_prior:
         prior = {"source": "user", "path": str(Path(semantic_prior).expanduser().resolve())}
@@ -368,21 +364,17 @@ def _most_settings(
     equivariant: int | None,
 ) -> dict[str, dict[str, Any]]:
     """:func:`stage_settings` for MOST (see there)."""
-    refused = {
-        "--stride": stride not in (None, 1),
-        "--clusterer": bool(clusterer),
-        "--tta": tta != 1 or tta_flip,
-        "--equivariant": equivariant is not None,
-    }
-    bad = [flag for flag, given in refused.items() if given]
-    if bad:
-        raise ValueError(f"{', '.join(bad)}: not a setting of method most (it applies to --method dsnet)")
+    _refuse(
+        "most",
+        {
+            "--stride": stride not in (None, 1),
+            "--clusterer": bool(clusterer),
+            "--tta": tta != 1 or tta_flip,
+            "--equivariant": equivariant is not None,
+        },
+    )
     stages: dict[str, dict[str, Any]] = {"align": {"scans": 1}}
-    ingest: dict[str, Any] = {"estimate_poses": True} if estimate_poses else {}
-    if max_points is not None:
-        ingest["max_points"] = max_points
-    if ingest:
-        stages["ingest"] = ingest
+    stages.update(_ingest_settings(estimate_poses, max_points))
     most: dict[str, Any] = {"scans": scans}
     if checkpoint:
         most["checkpoint"] = str(Path(checkpoint).expanduser().resolve())

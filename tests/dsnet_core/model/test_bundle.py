@@ -95,3 +95,19 @@ def test_lost_shift_weights_recorded_by_the_card_are_refused(tmp_path):
     with pytest.raises(CheckpointError, match=r"shift\.safetensors: shifting weights are missing"):
         load_shift_weights(ckpt)
     assert load_shift_weights(make_checkpoint(tmp_path / "plain", shift_weights=False)) is None
+
+
+def test_every_bundled_model_verifies_against_its_card():
+    """Each folder under data/models loads through its method's loader, which checks the weights'
+    sha256 against the card (a DS-Net, D-PLS or MOST checkpoint alike)."""
+    from dsnet_core.model.bundle import bundled_dir, bundled_most_checkpoint
+    from dsnet_core.model.checkpoint import load_checkpoint
+    from dsnet_core.most.checkpoint import checkpoint_method, load_most_checkpoint
+
+    folders = sorted(p for p in bundled_dir(1).parent.iterdir() if (p / "card.json").is_file())
+    assert {p.name for p in folders} >= {"tiny", "tiny-4d", "dpls", "most"}
+    for path in folders:
+        loader = load_most_checkpoint if checkpoint_method(path) == "most" else load_checkpoint
+        _, card = loader(path)
+        assert card.epochs, path
+    assert bundled_most_checkpoint(1) == bundled_most_checkpoint(3)  # one MOST model serves every k

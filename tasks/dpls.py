@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 from tasks.base import CLASS_MAP, ItemResult, Plan, Stage, StageConfig, StageContext
-from tasks.infer import InferStage, _check_device
+from tasks.infer import InferStage, _check_device, model_meta
 
 
 class DplsConfig(StageConfig):
@@ -79,11 +79,7 @@ class DplsStage(Stage):
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),
-            meta={
-                "checkpoint": str(path),
-                "model_card": f"{path.name}@{card.weights_sha256[:12]}",
-                CLASS_MAP: card.class_map,
-            },
+            meta=model_meta(path, card),
             dims={"classes": cfg.prior_channels, "features": cfg.ins_dim},
         )
 

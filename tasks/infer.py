@@ -70,6 +70,16 @@ def _check_device(device: str) -> None:
         raise ConfigError(f"--device {device}: this machine has no CUDA device (torch {torch.__version__})")
 
 
+def model_meta(path, card) -> dict:
+    """The plan facts of a model stage: the checkpoint folder, ``<folder>@<weights sha256[:12]>`` (the
+    report's model card) and the card's class map (the run's label map downstream)."""
+    return {
+        "checkpoint": str(path),
+        "model_card": f"{path.name}@{card.weights_sha256[:12]}",
+        CLASS_MAP: card.class_map,
+    }
+
+
 def quantise_probs(probs: np.ndarray) -> np.ndarray:
     """float ``(N, C)`` probabilities in [0, 1] → uint8 ``round(p * 255)`` (in torch: numpy's
     float16 conversions are several times slower)."""
@@ -133,11 +143,7 @@ class InferStage(Stage):
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),
-            meta={
-                "checkpoint": str(path),
-                "model_card": f"{path.name}@{card.weights_sha256[:12]}",
-                CLASS_MAP: card.class_map,
-            },
+            meta=model_meta(path, card),
             dims={"classes": cfg.num_classes, "features": cfg.ins_dim},
         )
 

@@ -29,7 +29,7 @@ from pydantic import Field
 from storage.contract import ArraySpec, TableSpec
 from tasks.align import volume_scans
 from tasks.base import CLASS_MAP, ItemResult, Plan, Stage, StageConfig, StageContext
-from tasks.infer import _check_device
+from tasks.infer import _check_device, model_meta
 
 log = logging.getLogger(__name__)
 
@@ -117,11 +117,7 @@ class MostStage(Stage):
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),
-            meta={
-                "checkpoint": str(path),
-                "model_card": f"{path.name}@{card.weights_sha256[:12]}",
-                CLASS_MAP: card.class_map,
-            },
+            meta=model_meta(path, card),
         )
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:

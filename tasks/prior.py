@@ -153,6 +153,7 @@ class PriorStage(Stage):
         row = {int(i): r for r, i in enumerate(frames["index"])}
         if ctx.config.source == "user":
             from dsnet_core.io.prior import find_prior, read_prior
+
             label_map = _files_label_map(ctx)
 
             def from_file(f: int) -> np.ndarray:

@@ -87,7 +87,7 @@ def label(
         None,
         "--prior-label-map",
         help="dpls: label map of the --semantic-prior files, a bundled name or a YAML "
-        "(default semantic-kitti).",
+        "(default: the log's own).",
     ),
 ) -> None:
     """Label a log into a run store (dsnet: ingest → align → infer → shift → fuse → stitch|track →

@@ -33,7 +33,13 @@ def serve(
     name: str = typer.Option(
         None, help="Dataset name (artifact keys, deployment name); default: the log's folder."
     ),
-    method: str = typer.Option("dsnet", "--method", help="Labelling method: dsnet or most (as dsnet label)."),
+    method: str = typer.Option(
+        "dsnet", "--method", help="Labelling method: dsnet, most or dpls (as dsnet label)."
+    ),
+    semantic_prior: str = typer.Option(None, "--semantic-prior", help="dpls: prior files (as dsnet label)."),
+    prior_label_map: str = typer.Option(
+        None, "--prior-label-map", help="dpls: their label map (as dsnet label)."
+    ),
     scans: int = typer.Option(None, help="k as in dsnet label (default 2 for dsnet, 3 for most)."),
     checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled model)."),
     until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
@@ -69,6 +75,8 @@ def serve(
                 estimate_poses=estimate_poses,
                 max_points=max_points,
                 method=method,
+                semantic_prior=semantic_prior,
+                prior_label_map=prior_label_map,
             ),
             until=until,
         )

@@ -152,3 +152,26 @@ def where_stopped(root: str, sequences: list[str] | tuple[str, ...], stages: lis
             return (f"before {stage}" if started_any else "startup"), detail
         return stage, detail
     return "publish", ""
+
+
+def kill_track_script(pipeline_factory: str, at_call: int = 4) -> str:
+    """A ``python -c`` script that reruns the ``track`` stage of the store ``sys.argv[1]`` (run
+    ``r1``) with the pipeline ``module:function`` names, SIGKILLing itself at the ``at_call``-th
+    frame the tracker receives."""
+    module, func = pipeline_factory.split(":")
+    return f"""
+import os, signal, sys
+import dsnet_core.temporal.tracking as tr
+_orig, _calls = tr.Tracker.add_detections, [0]
+def add_detections(self, *args, **kw):
+    _calls[0] += 1
+    if _calls[0] == {at_call}:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return _orig(self, *args, **kw)
+tr.Tracker.add_detections = add_detections
+from storage.run import RunStore
+from tasks.runner import run_stage_plain
+from {module} import {func}
+store = RunStore(sys.argv[1])
+run_stage_plain(store, {func}(), "00", "track", store.read_run_config("r1"), "r1", force=True)
+"""

@@ -19,14 +19,10 @@ from tasks.dpls import DplsStage
 from tasks.methods import get_pipeline
 from tasks.pipeline import Pipeline
 from tasks.runner import prepare_stage, run_stage_plain
+from tests.helpers.run_stages import run_all_stages
 from tests.model_helpers import make_checkpoint, make_dpls_checkpoint, write_gt_prior
 
 LM = load_label_map("semantic-kitti")
-
-
-def _run_all(store: RunStore, pipeline: Pipeline, run: dict, run_id: str = "r1") -> dict:
-    store.write_run_config(run_id, run)
-    return {s.name: run_stage_plain(store, pipeline, "00", s.name, run, run_id) for s in pipeline}
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +42,7 @@ def dpls_run(synth_log, tmp_path_factory):
         },
         "options": {"block_size": 2},
     }
-    return store, run, _run_all(store, get_pipeline("dpls"), run), tmp
+    return store, run, run_all_stages(store, get_pipeline("dpls"), run), tmp
 
 
 def test_dpls_carries_the_prior_to_the_final_labels(dpls_run):
@@ -191,7 +187,7 @@ def test_oracle_prior_and_centres_through_dbscan_fusion_and_stitching(synth_log,
         "options": {},
     }
     store = RunStore(tmp_path / "run")
-    m = _run_all(store, p, run)
+    m = run_all_stages(store, p, run)
     assert m["stitch"].status == "done"
     reader = SemanticKittiReader(synth_log)
     ev = PanopticEvaluator(LM, mode="corrected")

@@ -18,14 +18,11 @@ from tasks.methods import get_pipeline
 from tasks.most import MostStage
 from tasks.pipeline import Pipeline
 from tasks.runner import prepare_stage, run_stage_plain
+from tests.helpers.kill import kill_track_script
+from tests.helpers.run_stages import run_all_stages
 from tests.model_helpers import make_checkpoint, make_most_checkpoint
 
 LM = load_label_map("semantic-kitti")
-
-
-def _run_all(store: RunStore, pipeline: Pipeline, run: dict, run_id: str = "r1") -> dict:
-    store.write_run_config(run_id, run)
-    return {s.name: run_stage_plain(store, pipeline, "00", s.name, run, run_id) for s in pipeline}
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +36,7 @@ def most_run(synth_log, tmp_path_factory):
         "stages": {"align": {"scans": 1}, "most": {"checkpoint": str(ckpt), "scans": 2}},
         "options": {"block_size": 4},
     }
-    return store, run, _run_all(store, get_pipeline("most"), run)
+    return store, run, run_all_stages(store, get_pipeline("most"), run)
 
 
 def test_most_labels_every_frame_and_its_tables_agree_with_its_arrays(most_run, synth_log):
@@ -180,7 +177,7 @@ def oracle_pipeline() -> Pipeline:
 def oracle_run(synth_log, tmp_path_factory):
     store = RunStore(tmp_path_factory.mktemp("oracle") / "run")
     run = {"data": str(synth_log), "stages": {"align": {"scans": 1}}, "options": {}}
-    return store, _run_all(store, oracle_pipeline(), run)
+    return store, run_all_stages(store, oracle_pipeline(), run)
 
 
 def test_oracle_detections_through_the_track_stage_recover_the_truth(oracle_run, synth_log):
@@ -199,22 +196,7 @@ def test_oracle_detections_through_the_track_stage_recover_the_truth(oracle_run,
     assert res.panoptic.pq_things >= 0.9 and res.lstq.lstq >= 0.9, (res.panoptic.pq_things, res.lstq.lstq)
 
 
-KILL_AT_FOURTH_FRAME = """
-import os, signal, sys
-import dsnet_core.temporal.tracking as tr
-_orig, _calls = tr.Tracker.add_detections, [0]
-def add_detections(self, *args, **kw):
-    _calls[0] += 1
-    if _calls[0] == 4:
-        os.kill(os.getpid(), signal.SIGKILL)
-    return _orig(self, *args, **kw)
-tr.Tracker.add_detections = add_detections
-from storage.run import RunStore
-from tasks.runner import run_stage_plain
-from tests.tasks.test_most_stage import oracle_pipeline
-store = RunStore(sys.argv[1])
-run_stage_plain(store, oracle_pipeline(), "00", "track", store.read_run_config("r1"), "r1", force=True)
-"""
+KILL_AT_FOURTH_FRAME = kill_track_script("tests.tasks.test_most_stage:oracle_pipeline")
 
 
 def test_track_of_most_killed_mid_sequence_resumes_to_identical_labels(oracle_run, tmp_path):

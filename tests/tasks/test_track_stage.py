@@ -22,6 +22,7 @@ from tasks.pipeline import Pipeline
 from tasks.runner import run_stage_plain
 from tasks.stitch import StitchStage
 from tasks.track import TrackStage
+from tests.helpers.kill import kill_track_script
 
 LM = load_label_map("semantic-kitti")
 
@@ -69,6 +70,10 @@ def pipeline(temporal: str) -> Pipeline:
     return Pipeline(f"truth-{temporal}", stages, labels=temporal)
 
 
+def track_pipeline() -> Pipeline:
+    return pipeline("track")
+
+
 def _run(store: RunStore, log, temporal: str) -> dict:
     p = pipeline(temporal)
     run = {"data": str(log), "stages": {"align": {"scans": 1}}, "options": {"block_size": 4}}
@@ -110,22 +115,7 @@ def _lstq(store: RunStore, reader, stage: str) -> float:
     return ev.result().lstq.lstq
 
 
-KILL_AT_FOURTH_FRAME = """
-import os, signal, sys
-import dsnet_core.temporal.tracking as tr
-_orig, _calls = tr.Tracker.add_detections, [0]
-def add_detections(self, *args, **kw):
-    _calls[0] += 1
-    if _calls[0] == 4:
-        os.kill(os.getpid(), signal.SIGKILL)
-    return _orig(self, *args, **kw)
-tr.Tracker.add_detections = add_detections
-from storage.run import RunStore
-from tasks.runner import run_stage_plain
-from tests.tasks.test_track_stage import pipeline
-store = RunStore(sys.argv[1])
-run_stage_plain(store, pipeline("track"), "00", "track", store.read_run_config("r1"), "r1", force=True)
-"""
+KILL_AT_FOURTH_FRAME = kill_track_script("tests.tasks.test_track_stage:track_pipeline")
 
 
 @pytest.mark.parametrize("keep_state", [True, False])

@@ -29,9 +29,9 @@ TEMPORAL = {"stitch": StitchStage, "track": TrackStage}
 """How instance ids become sequence-wide: stitching overlapping volumes, or tracking instances."""
 
 
-def dsnet(temporal: str = "stitch") -> Pipeline:
-    """DS-Net / 4D-DS-Net: offsets → dynamic shifting → fusion → ``temporal``: stitching across
-    volumes (4D-DS-Net, k > 1) or tracking each frame's instances (k = 1 + tracking).
+def _bottom_up(name: str, model: tuple, source: str, temporal: str) -> Pipeline:
+    """Ingest → align → ``model`` stages → clustering and fusion of ``source``'s per-point outputs →
+    ``temporal`` association → score: the shape DS-Net and D-PLS share.
 
     Raises:
         ValueError: an unknown ``temporal``.
@@ -41,14 +41,24 @@ def dsnet(temporal: str = "stitch") -> Pipeline:
     stages = (
         IngestStage(),
         AlignStage(),
-        InferStage(),
-        ShiftStage(),
-        FuseStage(),
+        *model,
+        ShiftStage(source=source),
+        FuseStage(source=source),
         TEMPORAL[temporal](),
         ScoreStage(labels=temporal),
     )
     options = () if temporal == "stitch" else (("temporal", temporal),)
-    return Pipeline("dsnet", stages, labels=temporal, options=options)
+    return Pipeline(name, stages, labels=temporal, options=options)
+
+
+def dsnet(temporal: str = "stitch") -> Pipeline:
+    """DS-Net / 4D-DS-Net: offsets → dynamic shifting → fusion → ``temporal``: stitching across
+    volumes (4D-DS-Net, k > 1) or tracking each frame's instances (k = 1 + tracking).
+
+    Raises:
+        ValueError: an unknown ``temporal``.
+    """
+    return _bottom_up("dsnet", (InferStage(),), "infer", temporal)
 
 
 def most(temporal: str = "track") -> Pipeline:
@@ -73,20 +83,7 @@ def dpls(temporal: str = "stitch") -> Pipeline:
     Raises:
         ValueError: an unknown ``temporal``.
     """
-    if temporal not in TEMPORAL:
-        raise ValueError(f"unknown temporal association {temporal!r}; choose one of {sorted(TEMPORAL)}")
-    stages = (
-        IngestStage(),
-        AlignStage(),
-        PriorStage(),
-        DplsStage(),
-        ShiftStage(source="dpls"),
-        FuseStage(source="dpls"),
-        TEMPORAL[temporal](),
-        ScoreStage(labels=temporal),
-    )
-    options = () if temporal == "stitch" else (("temporal", temporal),)
-    return Pipeline("dpls", stages, labels=temporal, options=options)
+    return _bottom_up("dpls", (PriorStage(), DplsStage()), "dpls", temporal)
 
 
 METHODS: dict[str, Callable[..., Pipeline]] = {"dsnet": dsnet, "most": most, "dpls": dpls}

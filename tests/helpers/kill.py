@@ -175,3 +175,29 @@ from {module} import {func}
 store = RunStore(sys.argv[1])
 run_stage_plain(store, {func}(), "00", "track", store.read_run_config("r1"), "r1", force=True)
 """
+
+
+def kill_track_in_a_copy(store, pipeline_factory: str, root, frames: int = 6):
+    """Copy run store ``store`` to ``root``, rerun its ``track`` stage in a subprocess that SIGKILLs
+    itself at the fourth frame (:func:`kill_track_script`), check that exactly the first three frames
+    are done, and return the copy (a :class:`~storage.run.RunStore`)."""
+    import os
+    import shutil
+    import sys
+    from pathlib import Path
+
+    from storage.contract import StageContract
+    from storage.run import RunStore
+    from tasks.base import FRAME_LABEL
+
+    repo = Path(__file__).resolve().parents[2]
+    shutil.copytree(store.uri, root)
+    res = subprocess.run(
+        [sys.executable, "-c", kill_track_script(pipeline_factory), str(root)],
+        cwd=repo, env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == -signal.SIGKILL, res.stderr
+    copy = RunStore(root)
+    done = copy.arrays("00", StageContract("track", "frame", (FRAME_LABEL,))).done().tolist()
+    assert done == [True] * 3 + [False] * (frames - 3)
+    return copy

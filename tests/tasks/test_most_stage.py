@@ -18,7 +18,7 @@ from tasks.methods import get_pipeline
 from tasks.most import MostStage
 from tasks.pipeline import Pipeline
 from tasks.runner import prepare_stage, run_stage_plain
-from tests.helpers.kill import kill_track_script
+from tests.helpers.kill import kill_track_in_a_copy
 from tests.helpers.run_stages import run_all_stages
 from tests.model_helpers import make_checkpoint, make_most_checkpoint
 
@@ -196,30 +196,11 @@ def test_oracle_detections_through_the_track_stage_recover_the_truth(oracle_run,
     assert res.panoptic.pq_things >= 0.9 and res.lstq.lstq >= 0.9, (res.panoptic.pq_things, res.lstq.lstq)
 
 
-KILL_AT_FOURTH_FRAME = kill_track_script("tests.tasks.test_most_stage:oracle_pipeline")
-
-
 def test_track_of_most_killed_mid_sequence_resumes_to_identical_labels(oracle_run, tmp_path):
-    import os
-    import shutil
-    import signal
-    import subprocess
-    import sys
-    from pathlib import Path
-
     store, m = oracle_run
-    repo = Path(__file__).resolve().parents[2]
     p = oracle_pipeline()
     reference = [store.arrays("00", p["track"].contract).read_item(f)["label"] for f in range(6)]
-    root = tmp_path / "run"
-    shutil.copytree(store.uri, root)
-    res = subprocess.run(
-        [sys.executable, "-c", KILL_AT_FOURTH_FRAME, str(root)],
-        cwd=repo, env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert res.returncode == -signal.SIGKILL, res.stderr
-    copy = RunStore(root)
-    assert copy.arrays("00", p["track"].contract).done().tolist() == [True] * 3 + [False] * 3
+    copy = kill_track_in_a_copy(store, "tests.tasks.test_most_stage:oracle_pipeline", tmp_path / "run")
     run = copy.read_run_config("r1")
     assert prepare_stage(copy, p, "00", "track", run, "r1").action == "resume"
     resumed = run_stage_plain(copy, p, "00", "track", run, "r1")

@@ -4,8 +4,6 @@ fresh ids, labels in the scans' point order, and a kill in the middle resumes to
 
 from __future__ import annotations
 
-import os
-import signal
 from collections.abc import Iterator
 
 import numpy as np
@@ -22,7 +20,7 @@ from tasks.pipeline import Pipeline
 from tasks.runner import run_stage_plain
 from tasks.stitch import StitchStage
 from tasks.track import TrackStage
-from tests.helpers.kill import kill_track_script
+from tests.helpers.kill import kill_track_in_a_copy
 
 LM = load_label_map("semantic-kitti")
 
@@ -115,31 +113,14 @@ def _lstq(store: RunStore, reader, stage: str) -> float:
     return ev.result().lstq.lstq
 
 
-KILL_AT_FOURTH_FRAME = kill_track_script("tests.tasks.test_track_stage:track_pipeline")
-
-
 @pytest.mark.parametrize("keep_state", [True, False])
 def test_track_killed_mid_sequence_resumes_to_identical_labels(tracked, tmp_path, keep_state):
-    import shutil
-    import subprocess
-    import sys
-    from pathlib import Path
-
     from tasks.runner import prepare_stage
 
     store, m = tracked
-    repo = Path(__file__).resolve().parents[2]
     p = pipeline("track")
     reference = [store.arrays("00", p["track"].contract).read_item(f)["label"] for f in range(6)]
-    root = tmp_path / "run"
-    shutil.copytree(store.uri, root)
-    res = subprocess.run(
-        [sys.executable, "-c", KILL_AT_FOURTH_FRAME, str(root)],
-        cwd=repo, env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert res.returncode == -signal.SIGKILL, res.stderr
-    copy = RunStore(root)
-    assert copy.arrays("00", p["track"].contract).done().tolist() == [True] * 3 + [False] * 3
+    copy = kill_track_in_a_copy(store, "tests.tasks.test_track_stage:track_pipeline", tmp_path / "run")
     assert copy.root.read_json("sequences/00/track/state.json")["position"] == 2
     if not keep_state:  # replayed from the first frame instead
         copy.root.remove("sequences/00/track/state.json")

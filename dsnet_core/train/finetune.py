@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from dsnet_core.train.loop import Trainer
 
 #: per stage: the validation score and whether higher is better
-SCORES = {"semantic": ("val_miou", True), "offset": ("val_offset_l1", False)}
+SCORES = {"semantic": ("val_miou", True), "offset": ("val_offset_l1", False), "joint": ("val_miou", True)}
 
 
 def volume_name(refs: list[FrameRef]) -> str:

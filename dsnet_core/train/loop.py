@@ -62,7 +62,13 @@ from dsnet_core.train.state import load_train_state, save_train_state
 from dsnet_core.train.stream import StreamLog
 
 log = logging.getLogger(__name__)
-STAGES = ("semantic", "offset", "shift")
+STAGES = ("semantic", "offset", "joint", "shift")
+"""Stages in the order they run. ``joint`` (4D-DS-Net's volume fine-tune) trains the point MLP,
+U-Net, semantic and instance heads together on the sum of both losses; a plain run leaves it at 0
+epochs."""
+STAGE_SEED = {"semantic": 0, "offset": 1, "shift": 2, "joint": 3}
+"""Each stage's index in its random streams and stream windows (fixed: adding a stage must not
+change what the existing ones draw)."""
 INSTANCE_PARAMS = ("ins_head.", "anchor_head.")
 """Parameters the offset stage trains (the equivariant network's anchor scores included)."""
 
@@ -72,7 +78,7 @@ class TrainConfig:
     """Training schedule.
 
     Attributes:
-        stage: "semantic", "offset", "shift" or "all".
+        stage: "semantic", "offset", "joint", "shift" or "all".
         epochs: epochs per stage.
         lr: Adam learning rate.
         scans: scans per 4D volume (1 = single-scan).
@@ -134,7 +140,7 @@ class TrainConfig:
             return list(STAGES)
         if self.stage not in STAGES:
             raise ConfigError(
-                f"unknown training stage '{self.stage}' (choose semantic, offset, shift or all)"
+                f"unknown training stage '{self.stage}' (choose semantic, offset, joint, shift or all)"
             )
         return [self.stage]
 
@@ -285,7 +291,7 @@ class Trainer:
         return self.card
 
     def _run_stage(self, stage: str, done: int, total: int, on_step: StepCallback | None) -> None:
-        """Train epochs ``done`` … ``total − 1`` of the semantic or offset stage."""
+        """Train epochs ``done`` … ``total − 1`` of the semantic, offset or joint stage."""
         opt = self._optimizer(stage)
         net = self.dist.wrap(self.model, self.device)  # after _optimizer chose the trained parameters
         if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
@@ -343,7 +349,7 @@ class Trainer:
         # resumed at this stage has not trained the earlier ones and would start (and end) elsewhere
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(
-                int(np.random.default_rng([self.cfg.seed, STAGES.index("shift")]).integers(2**31))
+                int(np.random.default_rng([self.cfg.seed, STAGE_SEED["shift"]]).integers(2**31))
             )
             module = make_shift_module(self.cfg.scans, self.model.config.ins_dim)
         saved = load_shift_weights(self.out) if done else None
@@ -351,7 +357,7 @@ class Trainer:
             module.load_state_dict(saved)
         n_seeds = clusterer_for(self.cfg.scans).n_seeds
         if isinstance(self.reader, StreamLog):  # seeds of the shift stage's own window
-            self.train_vols = self.reader.volumes(self.reader.window(STAGES.index("shift"), 0))
+            self.train_vols = self.reader.volumes(self.reader.window(STAGE_SEED["shift"], 0))
         log.info("shift stage: collecting seeds of %d training volumes", len(self.train_vols))
         mine = [self.train_vols[i] for i in self.dist.part(len(self.train_vols))]
         train = shift_samples(self.model, self.reader, mine, self.label_map, n_seeds, self.device)
@@ -399,11 +405,12 @@ class Trainer:
             )
 
     def _optimizer(self, stage: str) -> torch.optim.Optimizer:
-        head = stage == "offset"
+        """Adam over the stage's parameters: offset the instance head, semantic everything else
+        (or only the semantic head with ``freeze_backbone``), joint both."""
         for name, p in self.model.named_parameters():
             instance = name.startswith(INSTANCE_PARAMS)
             semantic = name.startswith("sem_head.") if self.cfg.freeze_backbone else not instance
-            p.requires_grad_(instance if head else semantic)
+            p.requires_grad_({"offset": instance, "semantic": semantic}.get(stage, instance or semantic))
         params = [p for p in self.model.parameters() if p.requires_grad]
         return torch.optim.Adam(params, lr=self.cfg.lr)
 
@@ -429,7 +436,7 @@ class Trainer:
         Returns:
             the mean step loss over all ranks.
         """
-        stage_idx = STAGES.index(stage)
+        stage_idx = STAGE_SEED[stage]
         if isinstance(self.reader, StreamLog):  # never-seen samples, a function of (stage, epoch)
             self.train_vols = self.reader.volumes(self.reader.window(stage_idx, epoch))
         rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch])
@@ -480,19 +487,22 @@ class Trainer:
 
     def _loss(self, stage: str, samples: list[Sample], net: torch.nn.Module | None = None) -> torch.Tensor:
         clouds = [torch.from_numpy(s.points).to(self.device) for s in samples]
-        out = (self.model if net is None else net)(clouds, instance=stage == "offset")
-        if stage == "semantic":
+        out = (self.model if net is None else net)(clouds, instance=stage != "semantic")
+        loss = torch.zeros((), device=self.device)
+        if stage in ("semantic", "joint"):
             sem = torch.from_numpy(np.concatenate([s.sem for s in samples])).to(self.device)
             n_vox, n_cls = out.voxel_logits.shape
             vsem = voxel_labels(out.point_to_voxel, sem, n_vox, n_cls)
-            return semantic_loss(out.voxel_logits, vsem, self.weights)
+            loss = semantic_loss(out.voxel_logits, vsem, self.weights)
+            if stage == "semantic":
+                return loss
         xyz = torch.cat([c[:, :3] for c in clouds])
         keys = np.concatenate([s.inst + (b << 40) * (s.inst > 0) for b, s in enumerate(samples)])
         valid = torch.from_numpy(np.concatenate([s.thing for s in samples])).to(self.device)
         centres = instance_centres(xyz, torch.from_numpy(keys).to(self.device), valid)
         if out.anchor_scores is not None:  # equivariant: eq. 9 + the offset in the anchor's frame
-            return equivariant_offset_loss(out.anchor_scores, out.anchor_offsets, xyz, centres, valid)
-        return offset_loss(out.offsets, xyz, centres, valid)
+            return loss + equivariant_offset_loss(out.anchor_scores, out.anchor_offsets, xyz, centres, valid)
+        return loss + offset_loss(out.offsets, xyz, centres, valid)
 
     # -- validation and files --------------------------------------------------------------
     def validate(self) -> dict:

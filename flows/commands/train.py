@@ -14,11 +14,12 @@ from flows.commands.common import fail, with_grid
 
 
 def parse_epochs(text: str) -> dict[str, int]:
-    """``"10"`` → 10 epochs for every stage; ``"semantic=10,offset=5"`` → per stage."""
+    """``"10"`` → 10 epochs for the semantic, offset and shift stages (joint only when named);
+    ``"semantic=10,offset=5"`` or ``"joint=2,shift=1"`` → per stage, unnamed stages 0."""
     if "=" not in text:
         n = int(text)
-        return {"semantic": n, "offset": n, "shift": n}
-    out = {"semantic": 0, "offset": 0, "shift": 0}
+        return {"semantic": n, "offset": n, "joint": 0, "shift": n}
+    out = {"semantic": 0, "offset": 0, "joint": 0, "shift": 0}
     for part in text.split(","):
         name, _, value = part.partition("=")
         if name.strip() not in out:
@@ -48,12 +49,18 @@ def train(
         help="dsnet (DS-Net / 4D-DS-Net), most (detect → member stages) or dpls (D-PLS's prior-conditioned "
         "instance network from --init-from, default the bundled model, on corrupted ground-truth priors).",
     ),
-    stage: str = typer.Option("all", help="semantic | offset | shift | all (most: detect | member | all)"),
+    stage: str = typer.Option(
+        "all", help="semantic | offset | joint | shift | all (most: detect | member | all)"
+    ),
     scans: int = typer.Option(
         None,
         help="Scans per 4D volume (default 1 = single scan); most: current + k-1 past scans (default 3).",
     ),
-    epochs: str = typer.Option("10", help="Epochs per stage: N, or e.g. 'semantic=20,offset=5'."),
+    epochs: str = typer.Option(
+        "10",
+        help="Epochs per stage: N, or e.g. 'semantic=20,offset=5'; 'joint=N' trains backbone, semantic "
+        "and instance heads together (4D-DS-Net's fine-tune on --scans k volumes, after --init-from).",
+    ),
     device: str = typer.Option("cpu", help="cpu | cuda"),
     resume: bool = typer.Option(False, "--resume", help="Continue the checkpoint in --out."),
     init_from: Path = typer.Option(

@@ -171,3 +171,49 @@ def test_bf16_mixed_precision_trains_in_float32_weights_and_is_recorded(tmp_path
     assert all(p.dtype == torch.float32 for p in model.parameters())
     with pytest.raises(ConfigError, match="--amp"):
         TrainConfig(amp="fp8")
+
+
+def _weights(folder):
+    model, _ = load_checkpoint(folder)
+    return {k: v.clone() for k, v in model.state_dict().items()}
+
+
+def _changed(before, after, prefix):
+    """Names under ``prefix`` whose float tensors differ between the two state dicts."""
+    return [
+        k
+        for k in before
+        if k.startswith(prefix) and before[k].is_floating_point() and not torch.equal(before[k], after[k])
+    ]
+
+
+def test_joint_stage_trains_the_backbone_and_the_instance_only_stage_does_not(log, tmp_path):
+    """4D-DS-Net's volume fine-tune (``joint``) moves the point MLP, U-Net and both heads; the
+    instance-head stage (``offset``) moves the instance head only, batch-norm statistics included."""
+    trainer(log, tmp_path / "base", stage="semantic", epochs={"semantic": 1}).run()
+    base = _weights(tmp_path / "base")
+    reader = SemanticKittiReader(log)
+
+    def fine_tune(out, epochs):
+        cfg = TrainConfig(augment=False, lr=0.01, scans=2, stage="all", epochs=epochs)
+        Trainer(out, TINY, reader, ["00"], reader, ["00"], LM, cfg, init_from=tmp_path / "base").run()
+        return _weights(out)
+
+    joint = fine_tune(tmp_path / "joint", {"joint": 1})
+    head = fine_tune(tmp_path / "head", {"offset": 1})
+    for prefix in ("point_encoder.", "backbone.", "sem_head.", "ins_head."):
+        assert _changed(base, joint, prefix), prefix
+    assert _changed(base, head, "ins_head.")
+    for prefix in ("point_encoder.", "backbone.", "sem_head."):
+        assert not _changed(base, head, prefix), prefix
+    card = load_checkpoint(tmp_path / "joint")[1]
+    assert card.epochs == {"joint": 1} and card.training_data["scans"] == 2
+    (record,) = card.metrics
+    assert record["stage"] == "joint" and record["val_offset_l1"] > 0 and 0 <= record["val_miou"] <= 1
+
+
+def test_epochs_text_names_the_joint_stage():
+    from flows.commands.train import parse_epochs
+
+    assert parse_epochs("3") == {"semantic": 3, "offset": 3, "joint": 0, "shift": 3}
+    assert parse_epochs("joint=2,shift=1") == {"semantic": 0, "offset": 0, "joint": 2, "shift": 1}

@@ -65,6 +65,7 @@ ROWS: dict[str, Row] = {
     "dsnet-k1-tta2": Row("DS-Net k=1 + track, --tta 2", "dsnet", 1, {"temporal": "track"}, {"tta": 2}),
     "dsnet-k1-tta4": Row("DS-Net k=1 + track, --tta 4", "dsnet", 1, {"temporal": "track"}, {"tta": 4}),
     "dsnet-k1-tta8": Row("DS-Net k=1 + track, --tta 8", "dsnet", 1, {"temporal": "track"}, {"tta": 8}),
+    "dsnet-k2-tta4": Row("4D-DS-Net k=2 + stitch, --tta 4", "dsnet", 2, {"temporal": "stitch"}, {"tta": 4}),
     "eq4-k1-track": Row(
         "Eq-4D n=4 (tiny lifted, instance head 1 epoch) k=1 + track",
         "dsnet",
@@ -200,6 +201,7 @@ class Scores:
             "lstq_corrected": c.lstq.lstq,
             "pq_things_corrected": c.panoptic.pq_things,
             "id_switches": self.switches.switches,
+            "class_iou": {name: score.iou for name, score in p.per_class.items()},
         }
 
 

@@ -95,7 +95,15 @@ def label_run(data: Path, run: Path, seqs: list[str], k: int, ckpt: str, force: 
 
     stages = stage_settings(k, None, ckpt, None)
     t0 = time.perf_counter()
-    request = LabelRequest(data=str(data), root=str(run), sequences=seqs, stages=stages, force=force)
+    # stitch at every k (k = 1 defaults to the track stage): the tracking rows are this script's own
+    request = LabelRequest(
+        data=str(data),
+        root=str(run),
+        sequences=seqs,
+        stages=stages,
+        force=force,
+        method_options={"temporal": "stitch"},
+    )
     summary = run_label(request)
     flow_s = time.perf_counter() - t0
     failed = [r for r in summary if r["action"] == "failed"]

@@ -6,8 +6,10 @@ A checkpoint folder (see :mod:`dsnet_core.model.checkpoint`) may also hold::
     CKPT/shift.safetensors    the dynamic-shifting MLPs (``DynamicShift.state_dict()``), optional;
                               its sha256 is in the card (``shift_sha256``) and checked on load
 
-The bundled models live in the package at ``dsnet_core/data/models/tiny/`` (single scans) and
-``dsnet_core/data/models/tiny-4d/`` (2-scan fine-tune), shipped by ``pyproject``'s package data.
+The bundled DS-Net models live in the package at ``dsnet_core/data/models/tiny-v2/`` (single scans)
+and ``dsnet_core/data/models/tiny-v2-4d/`` (its joint 2-scan fine-tune), shipped by ``pyproject``'s
+package data; ``tiny/`` and ``tiny-4d/`` are their predecessors (trained on one street style), kept
+because the bundled MOST and D-PLS models started from ``tiny`` and for comparison.
 When a copy of the package lacks them, :func:`bundled_checkpoint` returns None and callers say so.
 """
 
@@ -30,8 +32,8 @@ from dsnet_core.model.checkpoint import (
     write_card,
 )
 
-BUNDLED_NAME = "tiny"
-BUNDLED_4D_NAME = "tiny-4d"
+BUNDLED_NAME = "tiny-v2"
+BUNDLED_4D_NAME = "tiny-v2-4d"
 #: bundled MOST models: the accumulated-input one (k = 3) and, when present, a single-scan one
 BUNDLED_MOST_NAMES = {3: "most", 1: "most-1"}
 BUNDLED_DPLS_NAME = "dpls"
@@ -39,8 +41,8 @@ BUNDLED_DPLS_NAME = "dpls"
 
 def bundled_dir(scans: int = 1) -> Path:
     """Where the bundled demo checkpoint for ``scans``-scan volumes lives inside the package:
-    ``tiny`` (single scans) or ``tiny-4d`` (its instance head and shifting fine-tuned on 2-scan
-    volumes, used for every k > 1)."""
+    ``tiny-v2`` (single scans) or ``tiny-v2-4d`` (fine-tuned jointly on 2-scan volumes, used for
+    every k > 1)."""
     name = BUNDLED_NAME if scans <= 1 else BUNDLED_4D_NAME
     return Path(__file__).resolve().parents[1] / "data" / "models" / name
 

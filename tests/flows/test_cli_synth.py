@@ -73,7 +73,7 @@ def test_demo_labels_with_the_bundled_models(tmp_path, cli_env):
     res = demo("--frames", "2")
     assert res.returncode == 0, res.stderr
     assert "class histogram" in res.stdout and "motorcyclist" in res.stdout
-    assert f"model: bundled model {bundled_checkpoint(2)}" in res.stdout and "tiny-4d" in res.stdout
+    assert f"model: bundled model {bundled_checkpoint(2)}" in res.stdout and "tiny-v2-4d" in res.stdout
     assert "records no training" not in res.stdout
     scores = json.loads((out / "scores.json").read_text())
     assert scores["frames"] == 2

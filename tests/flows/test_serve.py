@@ -78,7 +78,7 @@ def test_served_deployment_labels_new_sequences_when_triggered(prefect_api_url, 
         for seq in ("00", "01"):
             for stage in ("ingest", "align", "infer", "shift", "fuse", "stitch", "score"):
                 assert store.read_manifest(seq, stage).status == "done"
-            assert store.read_manifest(seq, "infer").plan["checkpoint"].endswith("tiny-4d")
+            assert store.read_manifest(seq, "infer").plan["checkpoint"].endswith("tiny-v2-4d")
         tick = Artifact.get("auto-label-synth")
         assert "Labelled 2 sequence(s): 00, 01" in tick.data
         assert f"Dashboard: `{runs}/dashboard.html`" in tick.data and (runs / "dashboard.html").is_file()

@@ -218,9 +218,13 @@ def test_ctrl_c_or_sigterm_stops_cleanly_and_the_run_resumes(big_log, reference,
     env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
     env.update(PYTHONPATH=str(REPO), PREFECT_HOME=str(tmp_path / "prefect-home"))
     root = tmp_path / "run"
+    # Ctrl-C's default disposition, as at a terminal: a test run started as a background job of a
+    # non-interactive shell (`.ci/run &`) inherits SIGINT ignored, and Python then installs no
+    # KeyboardInterrupt handler, so dsnet would run to the end (rc 0)
     proc = subprocess.Popen(
         cli("label", str(big_log), "--run", str(root), *ARGS), cwd=REPO, env=env,
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     store = RunStore(root)
 

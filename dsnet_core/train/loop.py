@@ -44,7 +44,7 @@ from dsnet_core.model.losses import (
     semantic_loss,
     voxel_labels,
 )
-from dsnet_core.model.network import DSNet, lift_model
+from dsnet_core.model.network import DSNet, NetOutput, lift_model
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.train import commit, distributed
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
@@ -410,7 +410,7 @@ class Trainer:
         for name, p in self.model.named_parameters():
             instance = name.startswith(INSTANCE_PARAMS)
             semantic = name.startswith("sem_head.") if self.cfg.freeze_backbone else not instance
-            p.requires_grad_({"offset": instance, "semantic": semantic}.get(stage, instance or semantic))
+            p.requires_grad_({"offset": instance, "semantic": semantic, "joint": instance or semantic}[stage])
         params = [p for p in self.model.parameters() if p.requires_grad]
         return torch.optim.Adam(params, lr=self.cfg.lr)
 
@@ -486,23 +486,28 @@ class Trainer:
         return float(np.mean(np.concatenate(self.dist.all_gather(losses))))
 
     def _loss(self, stage: str, samples: list[Sample], net: torch.nn.Module | None = None) -> torch.Tensor:
+        """The stage's loss: semantic, offset (eq. 1, or eq. 9 when equivariant) or their sum (joint)."""
         clouds = [torch.from_numpy(s.points).to(self.device) for s in samples]
         out = (self.model if net is None else net)(clouds, instance=stage != "semantic")
-        loss = torch.zeros((), device=self.device)
-        if stage in ("semantic", "joint"):
-            sem = torch.from_numpy(np.concatenate([s.sem for s in samples])).to(self.device)
-            n_vox, n_cls = out.voxel_logits.shape
-            vsem = voxel_labels(out.point_to_voxel, sem, n_vox, n_cls)
-            loss = semantic_loss(out.voxel_logits, vsem, self.weights)
-            if stage == "semantic":
-                return loss
+        if stage == "semantic":
+            return self._semantic_loss(out, samples)
+        loss = self._offset_loss(out, clouds, samples)
+        return loss + self._semantic_loss(out, samples) if stage == "joint" else loss
+
+    def _semantic_loss(self, out: NetOutput, samples: list[Sample]) -> torch.Tensor:
+        sem = torch.from_numpy(np.concatenate([s.sem for s in samples])).to(self.device)
+        n_vox, n_cls = out.voxel_logits.shape
+        vsem = voxel_labels(out.point_to_voxel, sem, n_vox, n_cls)
+        return semantic_loss(out.voxel_logits, vsem, self.weights)
+
+    def _offset_loss(self, out: NetOutput, clouds: list[torch.Tensor], samples: list[Sample]) -> torch.Tensor:
         xyz = torch.cat([c[:, :3] for c in clouds])
         keys = np.concatenate([s.inst + (b << 40) * (s.inst > 0) for b, s in enumerate(samples)])
         valid = torch.from_numpy(np.concatenate([s.thing for s in samples])).to(self.device)
         centres = instance_centres(xyz, torch.from_numpy(keys).to(self.device), valid)
         if out.anchor_scores is not None:  # equivariant: eq. 9 + the offset in the anchor's frame
-            return loss + equivariant_offset_loss(out.anchor_scores, out.anchor_offsets, xyz, centres, valid)
-        return loss + offset_loss(out.offsets, xyz, centres, valid)
+            return equivariant_offset_loss(out.anchor_scores, out.anchor_offsets, xyz, centres, valid)
+        return offset_loss(out.offsets, xyz, centres, valid)
 
     # -- validation and files --------------------------------------------------------------
     def validate(self) -> dict:

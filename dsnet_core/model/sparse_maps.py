@@ -171,26 +171,6 @@ class Rulebook:
         flip = {"in": "out", "out": "in"}
         return self.table.csr(flip[side] if self.transposed else side, self.cols)
 
-    def all_taps_csr(self, n_taps: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`csr` by output with each pair's row replaced by ``in · n_taps + tap``: its row in
-        the product of every input with every tap, ``(n_in · n_taps, C_out)`` (cached on the table)."""
-        key = ("all-taps", self.transposed, n_taps, tuple((g.start, g.taps) for g in self.groups))
-        got = self.table._csr.get(key)
-        if got is None:
-            rows, offsets = self.csr("out")
-            dev = self.in_idx.device
-            tap_of_row = torch.empty(self.n_rows, dtype=torch.int64, device=dev)
-            for g in self.groups:
-                for j, tap in enumerate(g.taps):
-                    s = g.start + j * g.size
-                    tap_of_row[s : s + g.size] = tap
-            r = rows.long()
-            flat = self.in_idx.index_select(0, r).long() * n_taps + tap_of_row.index_select(0, r)
-            if self.n_in * n_taps >= 2**31:
-                raise ValueError(f"{self.n_in} inputs x {n_taps} taps exceed int32 row indices")
-            got = self.table._csr[key] = (flat.to(IDX), offsets)
-        return got
-
     def transpose(self) -> Rulebook:
         """The rulebook of the inverse convolution (inputs and outputs swapped, same weights' taps)."""
         return Rulebook(self.table, self.groups, self.cols, self.identity, not self.transposed)

@@ -24,7 +24,7 @@ from dsnet_core.instance.clustering_config import (  # noqa: F401  (re-exported:
     MeanShiftConfig,
 )
 from dsnet_core.instance.components import dbscan, radius_components
-from dsnet_core.instance.fps import farthest_point_sampling
+from dsnet_core.instance.fps import farthest_point_sampling, sample_with_nearest
 from dsnet_core.instance.meanshift import cluster_seeds, mean_shift
 from dsnet_core.instance.shifting import DynamicShift
 
@@ -100,14 +100,18 @@ class DynamicShiftClusterer:
             (seed indices int64 (M',), converged float32 (M', 3) metres).
         """
         seeds = farthest_point_sampling(xyz, self.n_seeds)
+        return seeds, self._converge(seeds, centres, features)
+
+    def _converge(self, seeds: np.ndarray, centres: np.ndarray, features: np.ndarray) -> np.ndarray:
         x = torch.from_numpy(np.ascontiguousarray(centres[seeds], dtype=np.float32)).to(self.device)
         f = torch.from_numpy(np.ascontiguousarray(features[seeds])).to(self.device)
         with torch.no_grad():
-            converged = self.module(x, f).positions[-1].cpu().numpy()
-        return seeds, converged
+            return self.module(x, f).positions[-1].cpu().numpy()
 
     def run(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray) -> ShiftOutput:
         """The whole DS-Net instance step, keeping the seeds for inspection (the ``shift`` stage).
+
+        Every point takes the id of its nearest seed (in ``xyz``), which the sampling itself finds.
 
         Args:
             xyz: float32 (M, 3) thing point positions, metres.
@@ -119,15 +123,10 @@ class DynamicShiftClusterer:
             return ShiftOutput(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32))
         if m == 1:  # batch norm cannot run on one seed; one point is one instance
             return ShiftOutput(np.ones(1, np.int64), np.zeros(1, np.int64), centres.astype(np.float32))
-        seeds, converged = self.shift(xyz, centres, features)
+        seeds, nearest = sample_with_nearest(xyz, self.n_seeds)
+        converged = self._converge(seeds, centres, features)
         seed_ids = cluster_seeds(converged, self.final_bandwidth)
-        if seeds.size == m:
-            ids = np.empty(m, dtype=np.int64)
-            ids[seeds] = seed_ids
-        else:
-            _, nn = cKDTree(xyz[seeds]).query(xyz, k=1)
-            ids = seed_ids[nn]
-        return ShiftOutput(ids, seeds, converged)
+        return ShiftOutput(seed_ids[nearest], seeds, converged)
 
     def cluster(self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray | None) -> np.ndarray:
         if features is None:

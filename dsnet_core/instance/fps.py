@@ -12,6 +12,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from dsnet_core.instance.kdtree import leaves
+
 _LEAF_SIZE = 128
 _GROUP = 16  # leaves per group
 
@@ -27,45 +29,34 @@ def farthest_point_sampling(points: np.ndarray, n: int) -> np.ndarray:
         int64 (min(n, M),) indices into ``points`` in selection order. When ``n >= M`` every
         point is returned in its original order (``arange(M)``), as the reference does.
     """
+    return sample_with_nearest(points, n)[0]
+
+
+def sample_with_nearest(points: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`farthest_point_sampling`, and for every point its nearest sample.
+
+    The sampling keeps each point's squared distance to the chosen set; recording which sample
+    lowered it last gives the nearest sample for free (float64 distances; among equidistant
+    samples the earliest chosen).
+
+    Returns:
+        (samples int64 (S,), nearest int64 (M,): position in ``samples`` of each point's nearest).
+    """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (M, 3), got {points.shape}")
     m = pts.shape[0]
     if n >= m:
-        return np.arange(m, dtype=np.int64)
+        return np.arange(m, dtype=np.int64), np.arange(m, dtype=np.int64)
     if n <= 0:
-        return np.zeros(0, dtype=np.int64)
+        return np.zeros(0, dtype=np.int64), np.full(m, -1, dtype=np.int64)
     if not np.isfinite(pts).all():
         raise ValueError("points hold NaN or inf")
-    order, leaf_start = _kd_leaves(pts)
-    return _fps_leaves(pts[order], order.astype(np.int64), leaf_start, n)
-
-
-def _kd_leaves(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Permutation grouping the points into k-d leaves of at most ``_LEAF_SIZE`` points.
-
-    Returns:
-        (order int64 (M,), leaf_start int64 (L + 1,)): leaf ``l`` holds ``order[start[l]:start[l+1]]``.
-    """
-    order = np.arange(pts.shape[0], dtype=np.int64)
-    bounds = [0]
-    stack = [(0, pts.shape[0])]
-    while stack:
-        lo, hi = stack.pop()
-        if hi - lo <= _LEAF_SIZE:
-            bounds.append(hi)
-            continue
-        idx = order[lo:hi]
-        sub = pts[idx]
-        axis = int(np.argmax(sub.max(axis=0) - sub.min(axis=0)))
-        mid = (hi - lo) // 2
-        part = np.argpartition(sub[:, axis], mid, kind="introselect")
-        order[lo:hi] = idx[part]
-        # push the upper half first so leaves come out in ascending order
-        stack.append((lo + mid, hi))
-        stack.append((lo, lo + mid))
-    bounds_arr = np.sort(np.unique(np.asarray(bounds, dtype=np.int64)))
-    return order, bounds_arr
+    order, leaf_start = leaves(pts, _LEAF_SIZE)
+    samples, near_sorted = _fps_leaves(pts[order], order.astype(np.int64), leaf_start, n)
+    nearest = np.empty(m, dtype=np.int64)
+    nearest[order] = near_sorted
+    return samples, nearest
 
 
 @numba.njit(cache=True)
@@ -96,6 +87,7 @@ def _fps_leaves(p: np.ndarray, orig: np.ndarray, start: np.ndarray, n: int) -> n
                 lo[leaf, k] = min(lo[leaf, k], p[i, k])
                 hi[leaf, k] = max(hi[leaf, k], p[i, k])
     dist = np.full(m, np.inf)
+    near = np.zeros(m, dtype=np.int64)  # sample (selection position) that set dist
     leaf_max = np.full(n_leaves, np.inf)
     leaf_arg = np.empty(n_leaves, dtype=np.int64)  # position (sorted order) of the leaf's farthest point
     for leaf in range(n_leaves):
@@ -145,6 +137,7 @@ def _fps_leaves(p: np.ndarray, orig: np.ndarray, start: np.ndarray, n: int) -> n
                     d = dx * dx + dy * dy + dz * dz
                     if d < dist[i]:
                         dist[i] = d
+                        near[i] = s
                     v = dist[i]
                     if v > best_v or (v == best_v and orig[i] < orig[best_i]):
                         best_v = v
@@ -169,4 +162,4 @@ def _fps_leaves(p: np.ndarray, orig: np.ndarray, start: np.ndarray, n: int) -> n
             if v > best_v or (v == best_v and orig[i] < orig[cur]):
                 best_v = v
                 cur = i
-    return out
+    return out, near

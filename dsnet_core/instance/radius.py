@@ -15,6 +15,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from dsnet_core.instance.kdtree import build_kdtree
+
 _LEAF_SIZE = 16
 _MARGIN = 1e-6
 
@@ -46,7 +48,7 @@ class RadiusIndex:
         if self.empty:
             return
         pts = np.ascontiguousarray(points)
-        self.order, self.start, self.end, self.left = _build_tree(pts)
+        self.order, self.start, self.end, self.left = build_kdtree(pts, _LEAF_SIZE)
         self.ps = pts[self.order]
         self.vs = np.ascontiguousarray(
             np.transpose(values, (1, 0, 2))[self.order], dtype=np.float64
@@ -108,58 +110,6 @@ def radius_sums(queries: np.ndarray, points: np.ndarray, radii: np.ndarray, valu
     """
     index = RadiusIndex(points, radii, values)
     return index.sums_at_points() if queries is points else index.sums(queries)
-
-
-@numba.njit(cache=True)
-def _build_tree(pts):
-    """Median-split k-d tree; node ``i`` covers ``order[start[i]:end[i]]``; leaves have left = -1.
-
-    The two children of a node are created together, after it (right = left + 1).
-    """
-    m = pts.shape[0]
-    cap = 2 * (m // (_LEAF_SIZE // 2) + 1) + 1
-    order = np.arange(m)
-    start = np.empty(cap, dtype=np.int64)
-    end = np.empty(cap, dtype=np.int64)
-    left = np.full(cap, -1, dtype=np.int64)
-    start[0], end[0] = 0, m
-    n_nodes = 1
-    stack = np.empty(128, dtype=np.int64)
-    stack[0] = 0
-    top = 1
-    while top > 0:
-        top -= 1
-        node = stack[top]
-        lo_i, hi_i = start[node], end[node]
-        if hi_i - lo_i <= _LEAF_SIZE:
-            continue
-        best_axis, best_ext = 0, -1.0
-        for d in range(3):
-            mn, mx = np.inf, -np.inf
-            for s in range(lo_i, hi_i):
-                v = np.float64(pts[order[s], d])
-                mn = min(mn, v)
-                mx = max(mx, v)
-            if mx - mn > best_ext:
-                best_ext, best_axis = mx - mn, d
-        if best_ext <= 0.0:
-            continue  # identical points stay one leaf
-        idx = order[lo_i:hi_i].copy()
-        keys = np.empty(hi_i - lo_i)
-        for s in range(hi_i - lo_i):
-            keys[s] = pts[idx[s], best_axis]
-        srt = np.argsort(keys, kind="mergesort")
-        for s in range(hi_i - lo_i):
-            order[lo_i + s] = idx[srt[s]]
-        mid = lo_i + (hi_i - lo_i) // 2
-        left[node] = n_nodes
-        start[n_nodes], end[n_nodes] = lo_i, mid
-        start[n_nodes + 1], end[n_nodes + 1] = mid, hi_i
-        stack[top] = n_nodes
-        stack[top + 1] = n_nodes + 1
-        top += 2
-        n_nodes += 2
-    return order, start[:n_nodes].copy(), end[:n_nodes].copy(), left[:n_nodes].copy()
 
 
 @numba.njit(cache=True)

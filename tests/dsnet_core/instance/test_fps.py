@@ -49,3 +49,17 @@ def test_picks_are_distinct_and_start_at_zero():
 def test_rejects_bad_shape():
     with pytest.raises(ValueError, match=r"shape \(M, 3\)"):
         farthest_point_sampling(np.zeros((4, 2), np.float32), 2)
+
+
+def test_nearest_sample_is_the_brute_force_nearest_earliest_on_ties():
+    from dsnet_core.instance.fps import sample_with_nearest
+
+    rng = np.random.default_rng(5)
+    pts = np.concatenate([rng.normal(size=(700, 3)), rng.integers(0, 4, size=(300, 3))]).astype(np.float32)
+    samples, nearest = sample_with_nearest(pts, 90)
+    assert np.array_equal(samples, farthest_point_sampling(pts, 90))
+    p64 = pts.astype(np.float64)
+    d2 = ((p64[:, None, :] - p64[samples][None, :, :]) ** 2).sum(-1)
+    assert np.array_equal(nearest, np.argmin(d2, axis=1))  # argmin: the first (earliest) of equals
+    all_s, all_n = sample_with_nearest(pts[:50], 60)
+    assert np.array_equal(all_s, np.arange(50)) and np.array_equal(all_n, np.arange(50))

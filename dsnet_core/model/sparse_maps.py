@@ -19,17 +19,27 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
+from dsnet_core.model import sparse_maps_cpu
 from dsnet_core.model.sparse_index import (
+    DENSE_TABLE_MAX_CELLS,
     DenseIndex,
+    _scratch_table,
     compact_keys,
+    coord_keys,
     kernel_offsets,
     keys_to_coords,
     output_shape,
 )
 
 IDX = torch.int32  # pair and CSR indices (maps larger than 2^31 pairs are refused)
+CPU_KERNELS = True  # build maps of CPU tensors with the numba loops of sparse_maps_cpu (tests turn it off)
+
+
+def _numba(t: torch.Tensor) -> bool:
+    return CPU_KERNELS and t.device.type == "cpu"
 
 
 @dataclass
@@ -80,6 +90,11 @@ class PairTable:
         fill = torch.zeros(n, dtype=torch.int64, device=dev)
         if not segs:
             got = self._csr[key] = (idx.new_zeros(0), fill.to(IDX))
+            return got
+        if _numba(idx):
+            lo, hi = (np.array(v, dtype=np.int64) for v in zip(*segs, strict=True))
+            rows, offsets = sparse_maps_cpu.csr_rows(idx.numpy(), lo, hi, n)
+            got = self._csr[key] = (torch.from_numpy(rows), torch.from_numpy(offsets))
             return got
         sel = torch.cat([idx[s:e] for s, e in segs]).long()
         if n > 1:
@@ -215,6 +230,36 @@ class NeighbourMap:
         offs = kernel_offsets(tuple(2 * r + 1 for r in radius), dev) - torch.tensor(radius, device=dev)
         n_box = offs.shape[0]
         half = n_box // 2
+        box = tuple(s + 2 * r for s, r in zip(shape, radius, strict=True))
+        n_cells = max(batch_size, 1) * box[0] * box[1] * box[2]
+        if _numba(coords) and m and half and n_cells <= DENSE_TABLE_MAX_CELLS:
+            keys = coord_keys(coords + torch.tensor([0, *radius]), box).contiguous()
+            steps = (offs[:half] * torch.tensor([box[1] * box[2], box[2], 1])).sum(1)
+            table = _scratch_table(n_cells, dev).numpy()
+            in_np, out_np, counts_np = sparse_maps_cpu.neighbour_pairs(keys.numpy(), m, steps.numpy(), table)
+            in_idx, out_idx, counts_half = (
+                torch.from_numpy(in_np),
+                torch.from_numpy(out_np),
+                counts_np.tolist(),
+            )
+            starts_half = list(itertools.accumulate([0, *counts_half[:-1]]))[:half]
+        else:
+            in_idx, out_idx, starts_half, counts_half = cls._pairs_torch(
+                coords, shape, radius, batch_size, offs
+            )
+        starts, counts = [0] * (n_box - 1), [0] * (n_box - 1)
+        for u in range(half):
+            mirror = n_box - 2 - u  # column of offset -d (box index n_box-1-u, centre dropped)
+            starts[u], counts[u] = 2 * starts_half[u], counts_half[u]
+            starts[mirror], counts[mirror] = 2 * starts_half[u] + counts_half[u], counts_half[u]
+        mirror = [n_box - 2 - c for c in range(n_box - 1)]
+        return cls(tuple(radius), PairTable(in_idx, out_idx, starts, counts, m, m, mirror))
+
+    @staticmethod
+    def _pairs_torch(coords, shape, radius, batch_size, offs):
+        """(in_idx, out_idx, starts_half, counts_half) of the first half of ``offs`` and their
+        mirrors, with whole-array torch operations (any device)."""
+        m, half = coords.shape[0], offs.shape[0] // 2
         with DenseIndex(coords, shape, radius, batch_size) as index:
             nbr = index.neighbours(offs[:half]).reshape(-1)  # (half * M,)
         flat = torch.nonzero(nbr >= 0).reshape(-1)
@@ -227,13 +272,7 @@ class NeighbourMap:
         spans = list(zip(starts_half, ends, strict=True))
         in_idx = torch.cat([t for s, e in spans for t in (other[s:e], site[s:e])] or [site[:0]])
         out_idx = torch.cat([t for s, e in spans for t in (site[s:e], other[s:e])] or [site[:0]])
-        starts, counts = [0] * (n_box - 1), [0] * (n_box - 1)
-        for u in range(half):
-            mirror = n_box - 2 - u  # column of offset -d (box index n_box-1-u, centre dropped)
-            starts[u], counts[u] = 2 * starts_half[u], counts_half[u]
-            starts[mirror], counts[mirror] = 2 * starts_half[u] + counts_half[u], counts_half[u]
-        mirror = [n_box - 2 - c for c in range(n_box - 1)]
-        return cls(tuple(radius), PairTable(in_idx, out_idx, starts, counts, m, m, mirror))
+        return in_idx, out_idx, starts_half, counts_half
 
     def rulebook(self, kernel: tuple[int, int, int]) -> Rulebook:
         """The rulebook of an odd ``kernel`` that fits in this map's box (weights in row-major order)."""
@@ -299,6 +338,31 @@ def strided_rulebook(
     dev, m = coords.device, coords.shape[0]
     if batch_size is None:
         batch_size = int(coords[:, 0].max()) + 1 if m else 1
+    n_cells = batch_size * out_shape[0] * out_shape[1] * out_shape[2]
+    k = kernel[0] * kernel[1] * kernel[2]
+    if _numba(coords) and m and n_cells <= DENSE_TABLE_MAX_CELLS:
+        arr = [np.array(v, dtype=np.int64) for v in (shape, kernel, stride, padding, out_shape)]
+        table = _scratch_table(n_cells, dev).numpy()
+        q_np, o_np, counts_np, keys_np = sparse_maps_cpu.strided_pairs(
+            coords.contiguous().numpy(), *arr, table
+        )
+        q, out_idx, counts = torch.from_numpy(q_np), torch.from_numpy(o_np), counts_np.tolist()
+        out_keys = torch.from_numpy(keys_np)
+    else:
+        q, out_idx, counts, out_keys = _strided_pairs_torch(
+            coords, kernel, stride, padding, out_shape, batch_size
+        )
+    starts = list(itertools.accumulate([0, *counts[:-1]]))
+    table = PairTable(q.to(IDX), out_idx.to(IDX), starts, counts, m, out_keys.numel())
+    groups = [_group(starts[t], n, (t,), dev) for t, n in enumerate(counts) if n]
+    book = Rulebook(table, groups, tuple(range(k)), None)
+    return book, keys_to_coords(out_keys, out_shape), out_shape
+
+
+def _strided_pairs_torch(coords, kernel, stride, padding, out_shape, batch_size):
+    """(inputs, output ranks, counts per tap, sorted output keys) of a strided map, with
+    whole-array torch operations (any device)."""
+    dev, m = coords.device, coords.shape[0]
     ct = coords.t().contiguous()  # (4, M): per-axis rows keep every (k, M) operand contiguous
     ok_axes, o_axes = [], []
     for a in range(3):
@@ -319,9 +383,4 @@ def strided_rulebook(
     okey = (okey * out_shape[1] + axis(1, (tap // k2) % k1)) * out_shape[2] + axis(2, tap % k2)
     n_cells = batch_size * out_shape[0] * out_shape[1] * out_shape[2]
     out_keys, out_idx = compact_keys(okey, n_cells)
-    counts = torch.bincount(tap, minlength=k).tolist()
-    starts = list(itertools.accumulate([0, *counts[:-1]]))
-    table = PairTable(q.to(IDX), out_idx.to(IDX), starts, counts, m, out_keys.numel())
-    groups = [_group(starts[t], n, (t,), dev) for t, n in enumerate(counts) if n]
-    book = Rulebook(table, groups, tuple(range(k)), None)
-    return book, keys_to_coords(out_keys, out_shape), out_shape
+    return q, out_idx, torch.bincount(tap, minlength=k).tolist(), out_keys

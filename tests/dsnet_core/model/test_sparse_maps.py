@@ -156,3 +156,48 @@ def test_strided_map_matches_brute_force():
                 expect[t].add((q, out_site[(b, *(n // s[a] for a, n in enumerate(num)))]))
     assert book_pairs(book, 27) == expect
     assert set(out_site.values()) == set(range(out_coords.shape[0]))
+
+
+def _table_state(table):
+    return (table.in_idx, table.out_idx, table.starts, table.counts, table.n_in, table.n_out, table.mirror)
+
+
+def _same_tables(a, b):
+    for x, y in zip(_table_state(a), _table_state(b), strict=True):
+        if isinstance(x, torch.Tensor):
+            assert x.dtype == y.dtype and torch.equal(x, y)
+        else:
+            assert x == y
+
+
+@pytest.mark.parametrize("radius", [(1, 1, 1), (2, 1, 1), (0, 1, 1)])
+def test_cpu_loops_build_the_torch_neighbour_map_pair_for_pair(radius, monkeypatch):
+    coords = random_sites((7, 6, 5), 3, 400, seed=21)
+    fast = sm.NeighbourMap.build(coords, (7, 6, 5), radius, 3)
+    monkeypatch.setattr(sm, "CPU_KERNELS", False)
+    ref = sm.NeighbourMap.build(coords, (7, 6, 5), radius, 3)
+    _same_tables(fast.table, ref.table)
+    for side in ("in", "out"):
+        cols = tuple(range(len(ref.table.counts)))
+        got, want = fast.table.csr(side, cols), ref.table.csr(side, cols)
+        assert all(torch.equal(g, w) for g, w in zip(got, want, strict=True))
+    # the scratch table is left as it was found
+    assert torch.all(si._scratch_table(1 << 12, coords.device) == -1)
+
+
+@pytest.mark.parametrize(
+    "stride,shape", [((2, 2, 2), (7, 6, 5)), ((2, 2, 1), (9, 6, 3)), ((1, 2, 3), (5, 5, 7))]
+)
+def test_cpu_loops_build_the_torch_strided_map_pair_for_pair(stride, shape, monkeypatch):
+    coords = random_sites(shape, 2, 300, seed=5)
+    fast, fast_coords, fast_shape = sm.strided_rulebook(coords, shape, (3, 3, 3), stride, (1, 1, 1), 2)
+    cols = tuple(range(27))
+    fast_csr = [fast.table.csr(side, cols) for side in ("in", "out")]
+    monkeypatch.setattr(sm, "CPU_KERNELS", False)
+    ref, ref_coords, ref_shape = sm.strided_rulebook(coords, shape, (3, 3, 3), stride, (1, 1, 1), 2)
+    _same_tables(fast.table, ref.table)
+    assert torch.equal(fast_coords, ref_coords) and fast_shape == ref_shape
+    for got, side in zip(fast_csr, ("in", "out"), strict=True):
+        want = ref.table.csr(side, cols)
+        assert all(torch.equal(g, w) for g, w in zip(got, want, strict=True))
+    assert torch.all(si._scratch_table(1 << 12, coords.device) == -1)

@@ -1,9 +1,11 @@
 """Time per stage of the label pipeline on 64-beam (hdl64) synthetic frames with the ``tiny`` model.
 
-Runs ingest → align → infer → shift → fuse → stitch through the plain runner (no Prefect, one
-torch thread) for each k, and prints seconds per frame for every stage (wall and process CPU
-time: on a shared machine the CPU time is the steadier number), the peak RSS, and stitch's
-share of a frame's time (it should be a small fraction).
+Runs ingest → align → infer → shift → fuse → track (k = 1) or stitch (k > 1), the temporal
+stage ``dsnet label`` picks by default (``--temporal`` forces one), through the plain runner
+(no Prefect, one torch thread) for each k, and prints seconds per frame for every stage (wall
+and process CPU time: on a shared machine the CPU time is the steadier number), the peak RSS,
+and the temporal stage's share of a frame's time (it should be a small fraction). Every stage's
+time includes its start (imports, loading the model): use enough frames (24) to amortise it.
 
 Without ``--checkpoint`` it builds a RANDOM-WEIGHT ``tiny`` checkpoint: the network's cost is
 the real one, but shifting then runs on whatever the random heads call "thing" (often far
@@ -29,9 +31,7 @@ import torch
 
 from tasks.methods import get_pipeline
 
-P = get_pipeline()  # the DS-Net stages
-
-STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
+STAGES = ("ingest", "align", "infer", "shift", "fuse")  # then the temporal stage
 
 
 def random_tiny_checkpoint(path: Path) -> Path:
@@ -51,6 +51,7 @@ def main() -> None:
     ap.add_argument("--scans", default="1,2,3,4")
     ap.add_argument("--checkpoint", type=Path, default=None)
     ap.add_argument("--log", type=Path, default=None, help="existing hdl64 log (default: generate one)")
+    ap.add_argument("--temporal", choices=("auto", "track", "stitch"), default="auto")
     args = ap.parse_args()
     torch.set_num_threads(1)
 
@@ -71,14 +72,18 @@ def main() -> None:
         print(f"checkpoint: {ckpt}{'' if args.checkpoint else ' (random weights, tiny preset)'}")
         for k in ks:
             cmd = [sys.executable, __file__, "--scans", str(k), "--log", str(log), "--checkpoint", str(ckpt)]
+            cmd += ["--temporal", args.temporal]
             subprocess.run(cmd, check=True)
         return
     for k in ks:
+        temporal = args.temporal if args.temporal != "auto" else ("track" if k == 1 else "stitch")
+        P = get_pipeline("dsnet", temporal=temporal)
+        stages = (*STAGES, temporal)
         store = RunStore(tmp / f"run-k{k}")
         run = {"data": str(log), "stages": {"align": {"scans": k}, "infer": {"checkpoint": str(ckpt)}}}
         store.write_run_config("bench", run)
         times, cpu = {}, {}
-        for stage in STAGES:
+        for stage in stages:
             t0, c0 = time.perf_counter(), time.process_time()
             m = run_stage_plain(store, P, "00", stage, run, "bench")
             times[stage], cpu[stage] = time.perf_counter() - t0, time.process_time() - c0
@@ -89,9 +94,9 @@ def main() -> None:
         for name, t in (("wall", times), ("cpu", cpu)):
             per_frame = {s: v / n_frames for s, v in t.items()}
             total = sum(per_frame.values())
-            cells = "  ".join(f"{s} {per_frame[s]:.3f}" for s in STAGES)
-            share = 100 * per_frame["stitch"] / total
-            print(f"  {name:>4}: {cells}  | total {total:.2f}  (stitch {share:.1f}%)")
+            cells = "  ".join(f"{s} {per_frame[s]:.3f}" for s in stages)
+            share = 100 * per_frame[temporal] / total
+            print(f"  {name:>4}: {cells}  | total {total:.2f}  ({temporal} {share:.1f}%)")
         thing = store.read_manifest("00", "infer").counts.get("thing_points", 0)
         print(f"  thing points per volume (as the model labels them): {thing / max(m.n_items, 1):.0f}")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

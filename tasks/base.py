@@ -14,6 +14,7 @@ manifest records the checkpoint card's class map), the ground truth's from the l
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -208,3 +209,28 @@ class StageContext:
         raise StoreError(
             self.store.where(self.sequence, self.stage), "no upstream model stage recorded a class map"
         )
+
+
+STATE_SHARE = 0.05
+"""Most of a stage's time that writing its resume state may take (``stitch``, ``track``): the
+state holds every track so far, so writing it after every item costs O(n) per item and O(n²) per
+sequence; past that share it is written less often (a resume replays a few more items, with the
+same result)."""
+
+
+class StateThrottle:
+    """``due()`` once the time since the last timed block (``with throttle:``) is at least that
+    block's duration / ``share``; always before the first."""
+
+    def __init__(self, share: float = STATE_SHARE, clock=time.perf_counter) -> None:
+        self.share, self.clock, self.cost, self.since = share, clock, 0.0, clock()
+
+    def due(self) -> bool:
+        return (self.clock() - self.since) * self.share >= self.cost
+
+    def __enter__(self) -> None:
+        self._t0 = self.clock()
+
+    def __exit__(self, *exc) -> None:
+        self.since = self.clock()
+        self.cost = self.since - self._t0

@@ -39,7 +39,7 @@ import pyarrow as pa
 
 from storage.contract import TableSpec
 from tasks.align import sequential_frames_plan
-from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext, StateThrottle
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +114,7 @@ class StitchStage(Stage):
         else:
             log.info("stitch %s resumes after volume %d from its saved state", ctx.sequence, start - 1)
         scores = self._scores(ctx)
+        throttle = StateThrottle()
         align = ctx.arrays("align")
         fuse = ctx.arrays("fuse")
         for v in range(start, len(windows)):
@@ -146,8 +147,10 @@ class StitchStage(Stage):
                     counts={"frames": 1, "points": n, "tracks": len(rows.get("tracks", []))},
                 )
             # runs once the runner has written every frame of this volume (done flags set)
-            state = {"fingerprint": fingerprint, "volume": v, "state": stitcher.state_dict()}
-            ctx.store.write_stage_state(ctx.sequence, self.name, state)
+            if v < len(windows) - 1 and throttle.due():
+                with throttle:
+                    state = {"fingerprint": fingerprint, "volume": v, "state": stitcher.state_dict()}
+                    ctx.store.write_stage_state(ctx.sequence, self.name, state)
         ctx.store.write_stage_state(ctx.sequence, self.name, None)
 
     def _resume(self, ctx: StageContext, fingerprint: str, windows, done: np.ndarray, label_map):

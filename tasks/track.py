@@ -28,7 +28,7 @@ from pydantic import Field
 
 from storage.contract import TableSpec
 from tasks.align import sequential_frames_plan
-from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext, StateThrottle
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +119,7 @@ class TrackStage(Stage):
         align, fuse = ctx.arrays("align"), ctx.arrays(self.source)
         detections = _detections(ctx) if self.source == "most" else None
         cached: tuple[int, dict, dict] | None = None
+        throttle = StateThrottle()
         for k in range(start, len(order)):
             f = order[k]
             v = owner[f]
@@ -156,16 +157,18 @@ class TrackStage(Stage):
                     rows=rows,
                     counts={"frames": 1, "points": n, "tracks": len(rows.get("tracked", []))},
                 )
-            ctx.store.write_stage_state(
-                ctx.sequence,
-                self.name,
-                {
-                    "fingerprint": fingerprint,
-                    "position": k,
-                    "state": tracker.state_dict(),
-                    "summary": summary,
-                },
-            )
+            if k < len(order) - 1 and throttle.due():
+                with throttle:
+                    ctx.store.write_stage_state(
+                        ctx.sequence,
+                        self.name,
+                        {
+                            "fingerprint": fingerprint,
+                            "position": k,
+                            "state": tracker.state_dict(),
+                            "summary": summary,
+                        },
+                    )
         ctx.store.write_stage_state(ctx.sequence, self.name, None)
 
     def _resume(self, ctx: StageContext, fingerprint: str, order: list[int], label_map):

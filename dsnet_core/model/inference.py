@@ -100,6 +100,11 @@ class Predictor:
         nonempty = [t for t in tensors if t.shape[0] > 0]
         with torch.inference_mode():
             out = tta_forward(self.model, nonempty, self.tta) if nonempty else None
+        per_voxel = None
+        if out is not None and self.tta.is_identity and out.voxel_logits is not None:
+            # every point takes its voxel's logits: softmax and argmax once per voxel (~3x fewer rows)
+            vlogits = out.voxel_logits.float()
+            per_voxel = (torch.softmax(vlogits, dim=1).to(torch.float16), vlogits[:, 1:].argmax(dim=1) + 1)
         start = 0
         for t in tensors:
             n = t.shape[0]
@@ -108,14 +113,18 @@ class Predictor:
                 continue
             sl = slice(start, start + n)
             start += n
-            logits = out.logits[sl].float()
-            probs = torch.softmax(logits, dim=1)
-            sem = logits[:, 1:].argmax(dim=1) + 1
+            if per_voxel is not None:
+                vox = out.point_to_voxel[sl]
+                probs, sem = (v.index_select(0, vox) for v in per_voxel)
+            else:
+                logits = out.logits[sl].float()
+                probs = torch.softmax(logits, dim=1).to(torch.float16)
+                sem = logits[:, 1:].argmax(dim=1) + 1
             # float16 conversions in torch: numpy's are scalar loops, ~0.1 s per 120k × 32 array
             results.append(
                 InferenceResult(
                     sem=sem.cpu().numpy().astype(np.int64),
-                    probs=probs.to(torch.float16).cpu().numpy(),
+                    probs=probs.cpu().numpy(),
                     offsets=out.offsets[sl].float().cpu().numpy(),
                     features=out.features[sl].to(torch.float16).cpu().numpy(),
                 )

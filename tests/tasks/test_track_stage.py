@@ -121,7 +121,8 @@ def test_track_killed_mid_sequence_resumes_to_identical_labels(tracked, tmp_path
     p = pipeline("track")
     reference = [store.arrays("00", p["track"].contract).read_item(f)["label"] for f in range(6)]
     copy = kill_track_in_a_copy(store, "tests.tasks.test_track_stage:track_pipeline", tmp_path / "run")
-    assert copy.root.read_json("sequences/00/track/state.json")["position"] == 2
+    # written after frame 0, then whenever the time since outweighs its cost (base.STATE_SHARE)
+    assert copy.root.read_json("sequences/00/track/state.json")["position"] in (0, 1, 2)
     if not keep_state:  # replayed from the first frame instead
         copy.root.remove("sequences/00/track/state.json")
     run = copy.read_run_config("r1")

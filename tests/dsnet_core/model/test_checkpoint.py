@@ -114,6 +114,11 @@ def test_predictor_outputs(ckpt):
     with torch.inference_mode():
         ref = model.eval()([torch.from_numpy(a)])
     np.testing.assert_allclose(res.offsets, ref.offsets.numpy(), atol=1e-5)
+    # softmax and argmax taken per voxel equal them taken per point on the points' logits
+    logits = ref.logits.float()
+    np.testing.assert_array_equal(res.probs, torch.softmax(logits, 1).to(torch.float16).numpy())
+    np.testing.assert_array_equal(res.sem, (logits[:, 1:].argmax(1) + 1).numpy())
+    assert np.unique(ref.point_to_voxel.numpy()).size < 300  # some voxels hold several points
 
 
 def test_predictor_rejects_bad_points(ckpt):

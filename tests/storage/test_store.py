@@ -250,6 +250,26 @@ def test_missing_truncated_and_changed_chunks_are_named_never_zeros(tmp_path):
     assert [d.item for d in store.check_stage("00", contract, m, full=True)] == [0, 1, 2, 3]
 
 
+def test_item_records_with_the_older_blake2b_digest_are_still_verified(tmp_path):
+    from storage.arrays import digest
+
+    store = RunStore(tmp_path)
+    _finished_stage(store)
+    arrays = store.arrays("00", VOLUME)
+    record = store.read_item_record("00", "align", 1)
+    assert set(record["chunks"]["points"]) == {"size", "crc32"}
+    row = arrays._get("points", 1)
+    for chunk in record["chunks"].values():  # as a store written before CRC-32 records has them
+        del chunk["crc32"]
+    record["chunks"]["points"]["blake2b"] = digest(row)
+    store.write_item_record("00", "align", 1, record)
+    assert np.array_equal(store.arrays("00", VOLUME).read_item(1)["points"], row[:6])
+    record["chunks"]["points"]["blake2b"] = digest(row + 1)
+    store.write_item_record("00", "align", 1, record)
+    with pytest.raises(DamagedStoreError, match="does not match the checksum"):
+        store.arrays("00", VOLUME).read_item(1)
+
+
 def test_truncated_table_partition_is_a_typed_error(tmp_path):
     store = RunStore(tmp_path)
     contract, m = _finished_stage(store)

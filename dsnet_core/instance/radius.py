@@ -142,6 +142,38 @@ def _summaries(ps, vs, start, end, left):
 
 
 @numba.njit(cache=True)
+def _open_radii(mind2, maxd2, r2_64, jlo, jhi):
+    """Of the radii ``jlo..jhi`` (ascending, squared in ``r2_64``), for a pair of regions at squared
+    distances ``mind2..maxd2``: ``(lo, hi)`` such that radii above ``hi`` hold every pair, radii
+    below ``lo`` none, and ``lo..hi`` must be looked into (empty when ``lo > hi``). The 1e-6
+    relative margins keep the verdicts true under the pointwise test's rounding."""
+    hi = jhi
+    while hi >= jlo and maxd2 <= r2_64[hi] * (1.0 - 1e-6):
+        hi -= 1
+    lo = jlo
+    while lo <= hi and mind2 > r2_64[lo] * (1.0 + 1e-6):
+        lo += 1
+    return lo, hi
+
+
+@numba.njit(cache=True)
+def _leaf_sums(ps, vs, r2, s0, s1, qx, qy, qz, jlo, jhi, acc):
+    """``acc[j] += vs[s, j]`` for the points ``s0 <= s < s1`` within radius ``j`` of ``(qx, qy, qz)``
+    (``jlo <= j <= jhi``): the pointwise test, exact differences in the points' dtype."""
+    c = vs.shape[2]
+    for s in range(s0, s1):
+        dx = ps[s, 0] - qx
+        dy = ps[s, 1] - qy
+        dz = ps[s, 2] - qz
+        d2 = dx * dx + dy * dy + dz * dz
+        j = jhi
+        while j >= jlo and d2 <= r2[j]:
+            for ch in range(c):
+                acc[j, ch] += vs[s, j, ch]
+            j -= 1
+
+
+@numba.njit(cache=True)
 def _query(q, ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
     k, c = vs.shape[1], vs.shape[2]
     stack_node = np.empty(256, dtype=np.int64)
@@ -170,28 +202,12 @@ def _query(q, ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
                     mind2 += above * above
                 far = max(abs(x - lo[node, d]), abs(x - hi[node, d]))
                 maxd2 += far * far
-            j = jhi
-            while j >= jlo and maxd2 <= r2_64[j] * (1.0 - 1e-6):
-                for ch in range(c):
-                    acc[j, ch] += sums[node, j, ch]
-                j -= 1
-            new_hi = j
-            new_lo = jlo
-            while new_lo <= new_hi and mind2 > r2_64[new_lo] * (1.0 + 1e-6):
-                new_lo += 1
+            new_lo, new_hi = _open_radii(mind2, maxd2, r2_64, jlo, jhi)
+            acc[new_hi + 1 : jhi + 1] += sums[node, new_hi + 1 : jhi + 1]
             if new_lo > new_hi:
                 continue
             if left[node] < 0:
-                for s in range(start[node], end[node]):
-                    dx = ps[s, 0] - qx
-                    dy = ps[s, 1] - qy
-                    dz = ps[s, 2] - qz
-                    d2 = dx * dx + dy * dy + dz * dz
-                    j = new_hi
-                    while j >= new_lo and d2 <= r2[j]:
-                        for ch in range(c):
-                            acc[j, ch] += vs[s, j, ch]
-                        j -= 1
+                _leaf_sums(ps, vs, r2, start[node], end[node], qx, qy, qz, new_lo, new_hi, acc)
             else:
                 stack_node[top], stack_jlo[top], stack_jhi[top] = left[node], new_lo, new_hi
                 stack_node[top + 1], stack_jlo[top + 1], stack_jhi[top + 1] = right_of[node], new_lo, new_hi
@@ -211,6 +227,7 @@ def _self_query(ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
     n_nodes = start.shape[0]
     k, c = vs.shape[1], vs.shape[2]
     pending = np.zeros((n_nodes, k, c))
+    acc = np.zeros((ps.shape[0], k, c))
     stack_q = np.empty(512, dtype=np.int64)
     stack_d = np.empty(512, dtype=np.int64)
     stack_jlo = np.empty(512, dtype=np.int64)
@@ -227,31 +244,16 @@ def _self_query(ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
             mind2 += gap * gap
             far = max(hi[dn, d] - lo[qn, d], hi[qn, d] - lo[dn, d])
             maxd2 += far * far
-        j = jhi
-        while j >= jlo and maxd2 <= r2_64[j] * (1.0 - 1e-6):
-            for ch in range(c):
-                pending[qn, j, ch] += sums[dn, j, ch]
-            j -= 1
-        new_hi = j
-        new_lo = jlo
-        while new_lo <= new_hi and mind2 > r2_64[new_lo] * (1.0 + 1e-6):
-            new_lo += 1
+        new_lo, new_hi = _open_radii(mind2, maxd2, r2_64, jlo, jhi)
+        pending[qn, new_hi + 1 : jhi + 1] += sums[dn, new_hi + 1 : jhi + 1]
         if new_lo > new_hi:
             continue
         q_leaf, d_leaf = left[qn] < 0, left[dn] < 0
         if q_leaf and d_leaf:
             for a in range(start[qn], end[qn]):
-                qx, qy, qz = ps[a, 0], ps[a, 1], ps[a, 2]
-                for s in range(start[dn], end[dn]):
-                    dx = ps[s, 0] - qx
-                    dy = ps[s, 1] - qy
-                    dz = ps[s, 2] - qz
-                    d2 = dx * dx + dy * dy + dz * dz
-                    jj = new_hi
-                    while jj >= new_lo and d2 <= r2[jj]:
-                        for ch in range(c):
-                            out[jj, a, ch] += vs[s, jj, ch]
-                        jj -= 1
+                _leaf_sums(
+                    ps, vs, r2, start[dn], end[dn], ps[a, 0], ps[a, 1], ps[a, 2], new_lo, new_hi, acc[a]
+                )
             continue
         if top + 2 > stack_q.shape[0]:
             raise RuntimeError("dual-tree stack overflow")
@@ -273,5 +275,5 @@ def _self_query(ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
             for a in range(start[node], end[node]):
                 for j in range(k):
                     for ch in range(c):
-                        out[j, a, ch] += pending[node, j, ch]
+                        out[j, a, ch] = acc[a, j, ch] + pending[node, j, ch]
     return out

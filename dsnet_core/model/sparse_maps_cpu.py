@@ -98,50 +98,47 @@ def strided_pairs(coords, shape, kernel, stride, padding, out_shape, table):
     counts = np.zeros(n_taps, dtype=np.int64)
     marked = np.empty(max(m, 16), dtype=np.int64)
     n_marked = 0
-    for q in range(m):  # count the pairs per tap and collect the outputs
-        c0, c1, c2 = coords[q, 1], coords[q, 2], coords[q, 3]
-        if not (0 <= c0 < shape[0] and 0 <= c1 < shape[1] and 0 <= c2 < shape[2]):
-            raise ValueError("a site lies outside the grid's shape")
-        base = coords[q, 0] * out_shape[0]
-        for i0 in range(n0[c0]):
-            key0 = (base + o0[c0, i0]) * out_shape[1]
-            for i1 in range(n1[c1]):
-                key1 = (key0 + o1[c1, i1]) * out_shape[2]
-                t1 = (d0[c0, i0] * k1 + d1[c1, i1]) * k2
-                for i2 in range(n2[c2]):
-                    key = key1 + o2[c2, i2]
-                    counts[t1 + d2[c2, i2]] += 1
-                    if table[key] < 0:
-                        table[key] = 0
-                        if n_marked == marked.shape[0]:
-                            grown = np.empty(2 * n_marked, dtype=np.int64)
-                            grown[:n_marked] = marked
-                            marked = grown
-                        marked[n_marked] = key
-                        n_marked += 1
-    out_keys = np.sort(marked[:n_marked])
-    for r in range(n_marked):
-        table[out_keys[r]] = r
+    out_keys = marked[:0]
     starts = np.zeros(n_taps, dtype=np.int64)
-    for t in range(1, n_taps):
-        starts[t] = starts[t - 1] + counts[t - 1]
-    total = starts[n_taps - 1] + counts[n_taps - 1]
-    in_idx = np.empty(total, dtype=np.int32)
-    out_idx = np.empty(total, dtype=np.int32)
-    for q in range(m):  # fill them: inputs ascending within every tap
-        c0, c1, c2 = coords[q, 1], coords[q, 2], coords[q, 3]
-        base = coords[q, 0] * out_shape[0]
-        for i0 in range(n0[c0]):
-            key0 = (base + o0[c0, i0]) * out_shape[1]
-            for i1 in range(n1[c1]):
-                key1 = (key0 + o1[c1, i1]) * out_shape[2]
-                t1 = (d0[c0, i0] * k1 + d1[c1, i1]) * k2
-                for i2 in range(n2[c2]):
-                    t = t1 + d2[c2, i2]
-                    p = starts[t]
-                    in_idx[p] = q
-                    out_idx[p] = table[key1 + o2[c2, i2]]
-                    starts[t] = p + 1
+    in_idx = np.empty(0, dtype=np.int32)
+    out_idx = np.empty(0, dtype=np.int32)
+    for fill in range(2):  # pass 0 counts the pairs per tap and collects the outputs; pass 1 fills
+        if fill:
+            out_keys = np.sort(marked[:n_marked])
+            for r in range(n_marked):
+                table[out_keys[r]] = r
+            for t in range(1, n_taps):
+                starts[t] = starts[t - 1] + counts[t - 1]
+            in_idx = np.empty(starts[n_taps - 1] + counts[n_taps - 1], dtype=np.int32)
+            out_idx = np.empty(in_idx.shape[0], dtype=np.int32)
+        for q in range(m):  # inputs ascending within every tap
+            c0, c1, c2 = coords[q, 1], coords[q, 2], coords[q, 3]
+            if not (0 <= c0 < shape[0] and 0 <= c1 < shape[1] and 0 <= c2 < shape[2]):
+                raise ValueError("a site lies outside the grid's shape")
+            base = coords[q, 0] * out_shape[0]
+            for i0 in range(n0[c0]):
+                key0 = (base + o0[c0, i0]) * out_shape[1]
+                for i1 in range(n1[c1]):
+                    key1 = (key0 + o1[c1, i1]) * out_shape[2]
+                    t1 = (d0[c0, i0] * k1 + d1[c1, i1]) * k2
+                    for i2 in range(n2[c2]):
+                        key = key1 + o2[c2, i2]
+                        t = t1 + d2[c2, i2]
+                        if fill:
+                            p = starts[t]
+                            in_idx[p] = q
+                            out_idx[p] = table[key]
+                            starts[t] = p + 1
+                            continue
+                        counts[t] += 1
+                        if table[key] < 0:
+                            table[key] = 0
+                            if n_marked == marked.shape[0]:
+                                grown = np.empty(2 * n_marked, dtype=np.int64)
+                                grown[:n_marked] = marked
+                                marked = grown
+                            marked[n_marked] = key
+                            n_marked += 1
     for r in range(n_marked):
         table[out_keys[r]] = -1
     return in_idx, out_idx, counts, out_keys

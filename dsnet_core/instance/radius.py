@@ -141,7 +141,7 @@ def _summaries(ps, vs, start, end, left):
     return lo, hi, sums
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _open_radii(mind2, maxd2, r2_64, jlo, jhi):
     """Of the radii ``jlo..jhi`` (ascending, squared in ``r2_64``), for a pair of regions at squared
     distances ``mind2..maxd2``: ``(lo, hi)`` such that radii above ``hi`` hold every pair, radii
@@ -156,7 +156,15 @@ def _open_radii(mind2, maxd2, r2_64, jlo, jhi):
     return lo, hi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
+def _add_rows(acc, rows, j0, j1):
+    """``acc[j0:j1] += rows[j0:j1]`` for 2-D arrays, without the temporary a slice sum makes."""
+    for j in range(j0, j1):
+        for ch in range(acc.shape[1]):
+            acc[j, ch] += rows[j, ch]
+
+
+@numba.njit(cache=True, inline="always")
 def _leaf_sums(ps, vs, r2, s0, s1, qx, qy, qz, jlo, jhi, acc):
     """``acc[j] += vs[s, j]`` for the points ``s0 <= s < s1`` within radius ``j`` of ``(qx, qy, qz)``
     (``jlo <= j <= jhi``): the pointwise test, exact differences in the points' dtype."""
@@ -203,7 +211,7 @@ def _query(q, ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
                 far = max(abs(x - lo[node, d]), abs(x - hi[node, d]))
                 maxd2 += far * far
             new_lo, new_hi = _open_radii(mind2, maxd2, r2_64, jlo, jhi)
-            acc[new_hi + 1 : jhi + 1] += sums[node, new_hi + 1 : jhi + 1]
+            _add_rows(acc, sums[node], new_hi + 1, jhi + 1)
             if new_lo > new_hi:
                 continue
             if left[node] < 0:
@@ -245,7 +253,7 @@ def _self_query(ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
             far = max(hi[dn, d] - lo[qn, d], hi[qn, d] - lo[dn, d])
             maxd2 += far * far
         new_lo, new_hi = _open_radii(mind2, maxd2, r2_64, jlo, jhi)
-        pending[qn, new_hi + 1 : jhi + 1] += sums[dn, new_hi + 1 : jhi + 1]
+        _add_rows(pending[qn], sums[dn], new_hi + 1, jhi + 1)
         if new_lo > new_hi:
             continue
         q_leaf, d_leaf = left[qn] < 0, left[dn] < 0

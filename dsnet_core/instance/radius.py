@@ -17,7 +17,7 @@ import numpy as np
 
 from dsnet_core.instance.kdtree import build_kdtree
 
-_LEAF_SIZE = 16
+_LEAF_SIZE = 8  # measured on shifting seeds: 8 beats 16 by 10-15% (dual-tree walk included)
 _MARGIN = 1e-6
 
 

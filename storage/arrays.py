@@ -37,6 +37,7 @@ from storage.errors import ContractError, DamagedStoreError, StoreError
 from storage.fs import RootFS
 
 ZSTD_LEVEL = 3
+WRITE_CONFIG = {"write_empty_chunks": True}
 
 
 def digest(data: bytes | np.ndarray) -> str:
@@ -93,7 +94,11 @@ class StageArrays:
         self.rel = rel
         self.records = records
         self.names = [s.name for s in contract.arrays if s.name in group.array_keys()]
-        self._arrays = {name: group[name] for name in [*self.names, "n_points", "done"]}
+        # zarr skips storing a chunk equal to the fill value, which costs a full comparison on every
+        # write (6 ms of 14 for a frame's 124k x 32 float16 features); per-item rows are rarely all
+        # zero, so they are stored whatever they hold
+        self._arrays = {name: group[name].with_config(WRITE_CONFIG) for name in self.names}
+        self._arrays.update({name: group[name] for name in ("n_points", "done")})
 
     @classmethod
     def create(

@@ -16,6 +16,20 @@ from scipy.spatial import cKDTree
 from dsnet_core.instance.radius import RadiusIndex
 
 
+def _unique_rows(cells: np.ndarray) -> np.ndarray:
+    """``np.unique(cells, axis=0)`` for int64 ``(N, 3)`` rows, through one int64 key per row (the
+    row-wise unique sorts structured rows, ~5x slower)."""
+    if cells.shape[0] == 0:
+        return cells
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2**62:
+        return np.unique(cells, axis=0)
+    rel = cells - lo
+    keys = np.unique((rel[:, 0] * span[1] + rel[:, 1]) * span[2] + rel[:, 2])
+    return np.stack([keys // (span[1] * span[2]), (keys // span[2]) % span[1], keys % span[2]], axis=1) + lo
+
+
 def bin_seeds(x: np.ndarray, bandwidth: float) -> np.ndarray:
     """Seeds at the occupied cells of a grid of edge ``bandwidth`` (min bin frequency 1).
 
@@ -28,7 +42,7 @@ def bin_seeds(x: np.ndarray, bandwidth: float) -> np.ndarray:
         scikit-learn does).
     """
     binned = np.round(x / bandwidth)
-    cells = np.unique(binned, axis=0)
+    cells = _unique_rows(binned.astype(np.int64)).astype(binned.dtype)
     if cells.shape[0] == x.shape[0]:
         return x.astype(np.float64)
     return cells.astype(np.float32) * np.float32(bandwidth)

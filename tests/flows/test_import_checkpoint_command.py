@@ -65,7 +65,7 @@ def test_label_with_an_imported_model_then_relabel_with_another(prefect_api_url,
         }
 
     assert set(run("a").values()) == {"fresh"}
-    labels = RunStore(tmp_path / "run").arrays("00", _stitch()).read_item(0)["label"]
+    labels = RunStore(tmp_path / "run").arrays("00", _track()).read_item(0)["label"]
     assert labels.shape[0] > 0 and np.all((labels & 0xFFFF) < 260)
     assert run("b") == {
         "ingest": "skip",
@@ -73,12 +73,12 @@ def test_label_with_an_imported_model_then_relabel_with_another(prefect_api_url,
         "infer": "fresh",
         "shift": "fresh",
         "fuse": "fresh",
-        "stitch": "fresh",
+        "track": "fresh",  # k = 1 labels with tracking by default
         "score": "fresh",
     }
 
 
-def _stitch():
+def _track():
     from tasks.methods import get_pipeline
 
-    return get_pipeline()["stitch"].contract
+    return get_pipeline("dsnet", temporal="track")["track"].contract

@@ -224,7 +224,17 @@ def test_missing_truncated_and_changed_chunks_are_named_never_zeros(tmp_path):
     assert store.check_stage("00", contract, m, full=True) == []  # the all-zero item is not damage
     assert np.array_equal(store.arrays("00", VOLUME).read_item(3)["points"], np.zeros((6, 4)))
     base = tmp_path / "sequences/00/align/arrays.zarr"
-    assert not (base / "points/c/3/0/0").exists()
+    assert (base / "points/c/3/0/0").exists()  # stored although all zero (arrays.WRITE_CONFIG)
+    # stores written with zarr's default skip an all-zero chunk and record its size as None
+    (base / "points/c/3/0/0").unlink()
+    (frag,) = store.fragments("00", "align", "f").values()
+    frag.records[3]["chunks"]["points"]["size"] = None
+    store.write_fragment("00", "align", frag)
+    record = store.read_item_record("00", "align", 3)
+    record["chunks"]["points"]["size"] = None
+    store.write_item_record("00", "align", 3, record)
+    assert store.check_stage("00", contract, m, full=True) == []
+    assert np.array_equal(store.arrays("00", VOLUME).read_item(3)["points"], np.zeros((6, 4)))
 
     (base / "points/c/1/0/0").unlink()
     with pytest.raises(

@@ -33,3 +33,16 @@ def test_cluster_seeds_ids_start_at_one_largest_first():
     ids = cluster_seeds(x)
     assert ids.tolist() == [1] * 30 + [3] * 10 + [2] * 20
     assert cluster_seeds(np.zeros((0, 3), np.float32)).shape == (0,)
+
+
+def test_unique_rows_equal_numpys_row_unique():
+    from dsnet_core.instance.meanshift import _unique_rows
+
+    rng = np.random.default_rng(4)
+    for cells in (
+        rng.integers(-50, 50, size=(3000, 3)),
+        np.zeros((5, 3), np.int64),
+        rng.integers(-2, 2, size=(1, 3)),
+    ):
+        np.testing.assert_array_equal(_unique_rows(cells), np.unique(cells, axis=0))
+    assert _unique_rows(np.zeros((0, 3), np.int64)).shape == (0, 3)

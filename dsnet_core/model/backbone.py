@@ -19,6 +19,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from dsnet_core.model.eval_path import bn_affine, needs_module_path
 from dsnet_core.model.sparse_conv import SparseConv3d, SparseInverseConv3d, SparseTensor, SubMConv3d
 
 K133, K313, K333 = (1, 3, 3), (3, 1, 3), (3, 3, 3)
@@ -36,8 +37,23 @@ class ConvBNAct(nn.Module):
 
     def forward(self, x: SparseTensor) -> SparseTensor:
         f = self.conv(x).features
-        f = self.act(self.bn(f)) if self.bn_first else self.bn(self.act(f))
+        if needs_module_path(self, f):
+            f = self.act(self.bn(f)) if self.bn_first else self.bn(self.act(f))
+            return x.with_features(f)
+        # inference: the batch norm as one multiply-add in place on the fresh convolution output
+        # (BatchNorm1d on few channels is 2-4x slower than this)
+        scale, shift = bn_affine(self.bn)
+        if self.bn_first:
+            f = self._act_(torch.addcmul(shift, f, scale, out=f))
+        else:
+            f = self._act_(f)
+            torch.addcmul(shift, f, scale, out=f)
         return x.with_features(f)
+
+    def _act_(self, f: torch.Tensor) -> torch.Tensor:
+        if isinstance(self.act, nn.LeakyReLU):
+            return torch.nn.functional.leaky_relu_(f, self.act.negative_slope)
+        return self.act(f)
 
 
 class ResContextBlock(nn.Module):

@@ -6,15 +6,10 @@ import torch
 from torch import nn
 
 from dsnet_core.model.backbone import ConvBNAct
+from dsnet_core.model.eval_path import bn_affine, needs_module_path
 from dsnet_core.model.sparse_conv import SparseTensor, SubMConv3d
 
 POINT_CHUNK = 2048  # points per chunk of the eval-mode MLPs (their activations stay in cache)
-
-
-def _bn_affine(bn: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
-    """Eval-mode batch norm as ``x · scale + shift`` per channel."""
-    scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
-    return scale, bn.bias - bn.running_mean * scale
 
 
 def fold_mlp(mlp: nn.Sequential) -> list[tuple[torch.Tensor, torch.Tensor, bool]]:
@@ -28,14 +23,14 @@ def fold_mlp(mlp: nn.Sequential) -> list[tuple[torch.Tensor, torch.Tensor, bool]
     mods, pre, out = list(mlp), None, []
     for i, m in enumerate(mods):
         if isinstance(m, nn.BatchNorm1d) and (i == 0 or not isinstance(mods[i - 1], nn.Linear)):
-            pre = _bn_affine(m)
+            pre = bn_affine(m)
         elif isinstance(m, nn.Linear):
             w, b = m.weight, m.bias if m.bias is not None else m.weight.new_zeros(m.out_features)
             if pre is not None:
                 b, w, pre = b + w @ pre[1], w * pre[0][None, :], None
             nxt = mods[i + 1] if i + 1 < len(mods) else None
             if isinstance(nxt, nn.BatchNorm1d):
-                scale, shift = _bn_affine(nxt)
+                scale, shift = bn_affine(nxt)
                 w, b = w * scale[:, None], b * scale + shift
                 nxt = mods[i + 2] if i + 2 < len(mods) else None
             out.append((w.t().contiguous(), b, isinstance(nxt, nn.ReLU)))
@@ -59,15 +54,6 @@ def run_folded(layers: list[tuple[torch.Tensor, torch.Tensor, bool]], x: torch.T
             if relu:
                 h.relu_()
     return out
-
-
-def needs_module_path(module: nn.Module, x: torch.Tensor) -> bool:
-    """Whether a forward of ``module`` on ``x`` must run the modules themselves: in training (batch
-    statistics), where it must be differentiable, or under autocast (which the folded path's
-    ``out=`` GEMMs do not follow)."""
-    if module.training or torch.is_autocast_enabled(x.device.type):
-        return True
-    return torch.is_grad_enabled() and (x.requires_grad or any(p.requires_grad for p in module.parameters()))
 
 
 class PointEncoder(nn.Module):

@@ -59,3 +59,20 @@ def test_instance_head_fast_path_equals_the_module(monkeypatch):
         fast = head(SparseTensor(x.features, coords, (6, 6, 6), 1), ptv, xyz)
     for a, b in zip(fast, slow, strict=True):
         torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+
+
+def test_conv_bn_act_fast_path_equals_the_modules():
+    from dsnet_core.model.backbone import ConvBNAct
+
+    g = torch.Generator().manual_seed(7)
+    keys = torch.sort(torch.randperm(6 * 6 * 6, generator=g)[:80]).values
+    coords = torch.stack([keys * 0, keys // 36, (keys // 6) % 6, keys % 6], dim=1)
+    feats = torch.randn(80, 5, generator=g)
+    for bn_first, act in ((False, None), (True, None), (True, nn.Sigmoid())):
+        torch.manual_seed(1)
+        layer = ConvBNAct(5, 6, 3, act=act, bn_first=bn_first).eval()
+        _randomise_bn(layer, 8)
+        slow = layer(SparseTensor(feats, coords, (6, 6, 6), 1)).features  # parameters require grad
+        with torch.inference_mode():
+            fast = layer(SparseTensor(feats, coords, (6, 6, 6), 1)).features
+        torch.testing.assert_close(fast, slow, atol=1e-5, rtol=1e-5)

@@ -199,7 +199,7 @@ class RunStore:
     def write_item_record(self, sequence: str, stage: str, index: int, record: dict[str, Any]) -> None:
         """One item's table rows, counts and chunk record, written before its ``done`` flag
         (item-level resume and integrity checks)."""
-        self.root.write_json(self.item_record_rel(sequence, stage, index), record)
+        self.root.write_json(self.item_record_rel(sequence, stage, index), record, compact=True)
 
     def read_item_record(self, sequence: str, stage: str, index: int) -> dict[str, Any] | None:
         return self.root.read_json(self.item_record_rel(sequence, stage, index))
@@ -218,7 +218,7 @@ class RunStore:
         if state is None:
             self.root.remove(rel)
         else:
-            self.root.write_json(rel, state)
+            self.root.write_json(rel, state, compact=True)
 
     def _records(self, sequence: str, stage: str):
         return lambda index: self.read_item_record(sequence, stage, index)

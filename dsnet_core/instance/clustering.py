@@ -24,7 +24,7 @@ from dsnet_core.instance.clustering_config import (  # noqa: F401  (re-exported:
     MeanShiftConfig,
 )
 from dsnet_core.instance.components import dbscan, radius_components
-from dsnet_core.instance.fps import farthest_point_sampling, sample_with_nearest
+from dsnet_core.instance.fps import sample_with_nearest
 from dsnet_core.instance.meanshift import cluster_seeds, mean_shift
 from dsnet_core.instance.shifting import DynamicShift
 
@@ -90,17 +90,6 @@ class DynamicShiftClusterer:
         self.n_seeds = n_seeds
         self.final_bandwidth = final_bandwidth
         self.device = device
-
-    def shift(
-        self, xyz: np.ndarray, centres: np.ndarray, features: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """FPS seeds and their positions after dynamic shifting (needs M ≥ 2 points).
-
-        Returns:
-            (seed indices int64 (M',), converged float32 (M', 3) metres).
-        """
-        seeds = farthest_point_sampling(xyz, self.n_seeds)
-        return seeds, self._converge(seeds, centres, features)
 
     def _converge(self, seeds: np.ndarray, centres: np.ndarray, features: np.ndarray) -> np.ndarray:
         x = torch.from_numpy(np.ascontiguousarray(centres[seeds], dtype=np.float32)).to(self.device)

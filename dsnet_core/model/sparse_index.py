@@ -53,7 +53,7 @@ def lookup(sorted_keys: torch.Tensor, query: torch.Tensor) -> torch.Tensor:
 _SCRATCH = threading.local()
 
 
-def _scratch_table(n_cells: int, device: torch.device) -> torch.Tensor:
+def scratch_table(n_cells: int, device: torch.device) -> torch.Tensor:
     """A cached int32 table of ``n_cells`` entries, all -1 (callers reset what they write).
 
     One per thread and device, grown on demand: allocating and filling a fresh multi-megabyte table
@@ -99,7 +99,7 @@ class DenseIndex:
         elif self.dense:
             shift = torch.tensor([0, *self.pad], dtype=torch.int64, device=dev)
             self.keys = coord_keys(coords + shift, self.box)
-            self.table = _scratch_table(n_cells, dev)
+            self.table = scratch_table(n_cells, dev)
             self.table.index_copy_(0, self.keys, torch.arange(coords.shape[0], dtype=torch.int32, device=dev))
         else:
             self.keys = coord_keys(coords, self.shape)
@@ -147,7 +147,7 @@ def compact_keys(keys: torch.Tensor, n_cells: int) -> tuple[torch.Tensor, torch.
     """
     if n_cells > DENSE_TABLE_MAX_CELLS or keys.numel() == 0:
         return torch.unique(keys, sorted=True, return_inverse=True)
-    table = _scratch_table(n_cells, keys.device)
+    table = scratch_table(n_cells, keys.device)
     table.index_fill_(0, keys, 0)
     out = torch.nonzero(table == 0).reshape(-1)
     table.index_copy_(0, out, torch.arange(out.numel(), dtype=torch.int32, device=keys.device))

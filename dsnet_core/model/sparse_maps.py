@@ -28,12 +28,12 @@ from dsnet_core.model import sparse_maps_cpu
 from dsnet_core.model.sparse_index import (
     DENSE_TABLE_MAX_CELLS,
     DenseIndex,
-    _scratch_table,
     compact_keys,
     coord_keys,
     kernel_offsets,
     keys_to_coords,
     output_shape,
+    scratch_table,
 )
 
 IDX = torch.int32  # pair and CSR indices (maps larger than 2^31 pairs are refused)
@@ -237,7 +237,7 @@ class NeighbourMap:
         if _numba(coords) and m and half and n_cells <= DENSE_TABLE_MAX_CELLS:
             keys = coord_keys(coords + torch.tensor([0, *radius]), box).contiguous()
             steps = (offs[:half] * torch.tensor([box[1] * box[2], box[2], 1])).sum(1)
-            table = _scratch_table(n_cells, dev).numpy()
+            table = scratch_table(n_cells, dev).numpy()
             in_np, out_np, counts_np = sparse_maps_cpu.neighbour_pairs(keys.numpy(), m, steps.numpy(), table)
             in_idx, out_idx, counts_half = (
                 torch.from_numpy(in_np),
@@ -344,7 +344,7 @@ def strided_rulebook(
     k = kernel[0] * kernel[1] * kernel[2]
     if _numba(coords) and m and n_cells <= DENSE_TABLE_MAX_CELLS:
         arr = [np.array(v, dtype=np.int64) for v in (shape, kernel, stride, padding, out_shape)]
-        table = _scratch_table(n_cells, dev).numpy()
+        table = scratch_table(n_cells, dev).numpy()
         q_np, o_np, counts_np, keys_np = sparse_maps_cpu.strided_pairs(
             coords.contiguous().numpy(), *arr, table
         )

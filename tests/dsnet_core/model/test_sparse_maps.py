@@ -182,7 +182,7 @@ def test_cpu_loops_build_the_torch_neighbour_map_pair_for_pair(radius, monkeypat
         got, want = fast.table.csr(side, cols), ref.table.csr(side, cols)
         assert all(torch.equal(g, w) for g, w in zip(got, want, strict=True))
     # the scratch table is left as it was found
-    assert torch.all(si._scratch_table(1 << 12, coords.device) == -1)
+    assert torch.all(si.scratch_table(1 << 12, coords.device) == -1)
 
 
 @pytest.mark.parametrize(
@@ -200,4 +200,4 @@ def test_cpu_loops_build_the_torch_strided_map_pair_for_pair(stride, shape, monk
     for got, side in zip(fast_csr, ("in", "out"), strict=True):
         want = ref.table.csr(side, cols)
         assert all(torch.equal(g, w) for g, w in zip(got, want, strict=True))
-    assert torch.all(si._scratch_table(1 << 12, coords.device) == -1)
+    assert torch.all(si.scratch_table(1 << 12, coords.device) == -1)

@@ -2,14 +2,21 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed-$(shell cat pyproject.toml Makefile | cksum | cut -d' ' -f1)
+CONSTRAINTS := constraints/lock.txt
+STAMP := $(VENV)/.installed-$(shell cat pyproject.toml Makefile $(CONSTRAINTS) | cksum | cut -d' ' -f1)
 
 .PHONY: demo test test-slow test-gpu bench lint format clean chromium
 
-$(STAMP): pyproject.toml Makefile
+$(STAMP): pyproject.toml Makefile $(CONSTRAINTS)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[dev]"
+	# torch's CPU build first (a local wheel, else PyTorch's CPU index): a plain `torch==2.13.0`
+	# resolves to the CUDA build (2.7 GB of NVIDIA packages). Where neither is reachable, say so.
+	$(PY) -m pip install -q "torch==2.13.0+cpu" 2>/dev/null \
+	  || $(PY) -m pip install -q "torch==2.13.0+cpu" --extra-index-url https://download.pytorch.org/whl/cpu 2>/dev/null \
+	  || { echo "note: torch's CPU build is not reachable here; installing torch 2.13.0 from PyPI (CUDA build)"; \
+	       $(PY) -m pip install -q "torch==2.13.0"; }
+	$(PY) -m pip install -q -c $(CONSTRAINTS) -e ".[dev]"
 	# optional peer evaluators for the equality tests; --no-deps: their declared deps (GUI, unpinned torch) are not needed
 	$(PY) -m pip install -q --no-deps semantic-kitti-api==0.1 nuscenes-devkit==1.2.0
 	rm -f $(VENV)/.installed-*

@@ -8,6 +8,7 @@ report tables, the dashboard and the artifacts (:mod:`flows.publish`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from prefect import flow, get_run_logger
@@ -86,12 +87,34 @@ def auto_label(request: LabelRequest | dict[str, Any], dataset: str | None = Non
     return {"labelled": pending, "failed": failed, **published}
 
 
-def serve(request: LabelRequest, cron: str, name: str | None = None) -> None:
-    """Serve ``auto-label`` as a deployment with a cron schedule (blocks; needs a Prefect server)."""
+def serve(
+    request: LabelRequest,
+    cron: str,
+    name: str | None = None,
+    say: Callable[[str], None] = print,
+    check_every_s: float = 30.0,
+    grace_s: float = 150.0,
+) -> None:
+    """Serve ``auto-label`` as a deployment with a cron schedule (blocks; needs a Prefect server).
+
+    While serving, :class:`~flows.schedule_watch.ScheduleWatch` reports through ``say`` when the
+    server schedules no runs, a run is late, or a run fails.
+    """
+    from flows.schedule_watch import ScheduleWatch
+
     dataset = name or request.dataset_name()
     request.order(request.pipeline())  # an unknown method or stage fails here, not at the first tick
+    deployment = f"auto-label-{dataset_key(dataset)}"
+    watch = ScheduleWatch(f"auto-label/{deployment}", say, every_s=check_every_s, grace_s=grace_s).start()
+    try:
+        _serve(request, cron, dataset, deployment)
+    finally:
+        watch.stop()
+
+
+def _serve(request: LabelRequest, cron: str, dataset: str, deployment: str) -> None:
     auto_label.serve(
-        name=f"auto-label-{dataset_key(dataset)}",
+        name=deployment,
         cron=cron,
         parameters={"request": request.model_dump(mode="json"), "dataset": dataset},
         description=f"Label new or stale sequences of {request.data} into {request.root}, score, refresh "

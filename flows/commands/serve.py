@@ -46,6 +46,13 @@ def serve(
     estimate_poses: bool = typer.Option(
         False, "--estimate-poses", help="KISS-ICP poses for sequences without poses.txt (log poses win)."
     ),
+    check_every: float = typer.Option(
+        30.0,
+        "--check-every",
+        min=1.0,
+        help="Seconds between checks that the server schedules this deployment's runs and that they "
+        "succeed (a warning line when not).",
+    ),
 ) -> None:
     """Serve a Prefect deployment that labels, scores and publishes new or stale sequences on a schedule.
 
@@ -84,4 +91,11 @@ def serve(
         request.open_log()  # so do an unknown format or reader option
     typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
     with errors_exit():
-        serve_deployment(request, cron, name)
+        serve_deployment(
+            request,
+            cron,
+            name,
+            say=lambda line: typer.echo(line, err=True),
+            check_every_s=check_every,
+            grace_s=max(150.0, 3 * check_every),
+        )

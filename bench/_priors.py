@@ -27,7 +27,7 @@ def _frames(log: Path):
 
 
 def _corrupt(log: Path, scale: float, seed: int) -> list[tuple]:
-    from dsnet_core.model.bundle import bundled_dpls_checkpoint
+    from dsnet_core.checkpoints import bundled_dpls_checkpoint
     from dsnet_core.model.checkpoint import read_card
     from dsnet_core.train.prior_noise import PriorNoise, corrupt_prior, scale_confusion
 

@@ -26,9 +26,10 @@ from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from flows.commands.label import run_label
-from flows.request import LabelRequest, stage_settings
+from flows.request import LabelRequest
 from flows.server import prefect_api
 from storage.run import RunStore
+from tasks.methods import stage_configs
 
 GRIDS: dict[str, list[dict]] = {
     "dynamic shift (learned)": [{"kind": "dynamic_shift"}],
@@ -49,7 +50,7 @@ GRIDS: dict[str, list[dict]] = {
 def label(data: Path, run: Path, ckpt: str, clusterer: dict) -> float:
     """Label every sequence of ``data`` into ``run`` with ``clusterer``; seconds per frame of shift."""
     seqs = SemanticKittiReader(data).sequences()
-    stages = stage_settings(1, None, ckpt, json.dumps(clusterer))
+    stages = stage_configs(scans=1, checkpoint=ckpt, clusterer=json.dumps(clusterer))
     summary = run_label(LabelRequest(data=str(data), root=str(run), sequences=seqs, stages=stages))
     if any(r["action"] == "failed" for r in summary):
         raise SystemExit(f"label flow failed: {summary}")

@@ -91,9 +91,10 @@ def make_log(root: Path, sequences: int, frames: int, seed: int, first: int, sen
 def label_run(data: Path, run: Path, seqs: list[str], k: int, ckpt: str, force: bool) -> dict[str, float]:
     """Run the label flow for one k; seconds of the flow call and of each stage (all sequences)."""
     from flows.commands.label import run_label
-    from flows.request import LabelRequest, stage_settings
+    from flows.request import LabelRequest
+    from tasks.methods import stage_configs
 
-    stages = stage_settings(k, None, ckpt, None)
+    stages = stage_configs(scans=k, checkpoint=ckpt)
     t0 = time.perf_counter()
     # stitch at every k (k = 1 defaults to the track stage): the tracking rows are this script's own
     request = LabelRequest(
@@ -120,7 +121,7 @@ def label_run(data: Path, run: Path, seqs: list[str], k: int, ckpt: str, force: 
 
 def checkpoints(ckpt: str | None, ckpt4d: str | None) -> tuple[str, str]:
     """The k = 1 and the k > 1 checkpoint folders (absolute): as given, else the bundled models."""
-    from dsnet_core.model.bundle import bundled_checkpoint
+    from dsnet_core.checkpoints import bundled_checkpoint
 
     one = ckpt or bundled_checkpoint(1)
     if one is None:

@@ -49,7 +49,7 @@ class Row:
     method: str
     scans: int
     options: dict[str, Any] = field(default_factory=dict)  # the method's options (temporal)
-    settings: dict[str, Any] = field(default_factory=dict)  # stage_settings keywords
+    settings: dict[str, Any] = field(default_factory=dict)  # LabelSettings fields
     stages: dict[str, dict[str, Any]] = field(default_factory=dict)  # extra per-stage overrides
     checkpoint: str | None = None  # key of --checkpoint-KEY (default: the method's)
     prior: float | str | None = None  # D-PLS prior from ground truth: "gt", or a target mIoU
@@ -115,12 +115,13 @@ def make_log(root: Path, sequences: int, frames: int, seed: int, first: int, sen
 
 def request_of(row: Row, data: Path, store: Path, seqs: list[str], checkpoints: dict[str, str | None]):
     """The :class:`~flows.request.LabelRequest` ``dsnet label`` would build for ``row``."""
-    from flows.request import LabelRequest, stage_settings
+    from flows.request import LabelRequest
+    from tasks.methods import stage_configs
 
     settings = {"checkpoint": checkpoints.get(row.checkpoint or row.method), **row.settings}
     if row.prior is not None:
         settings["semantic_prior"] = str(prior_dir(store.parent, row.prior))
-    stages = stage_settings(row.scans, method=row.method, **settings)
+    stages = stage_configs(row.method, scans=row.scans, **settings)
     for name, over in row.stages.items():
         stages[name] = {**stages.get(name, {}), **over}
     return LabelRequest(
@@ -208,10 +209,10 @@ class Scores:
 def score_row(store: Path, reader, seqs: list[str], label_map) -> dict:
     """Scores of a row's stored final labels (its method's labels stage)."""
     from storage.run import RunStore
-    from tasks.methods import run_pipeline
+    from tasks.run_config import read_run
 
     rs = RunStore(store)
-    pipeline = run_pipeline(rs.read_run_config())
+    pipeline = read_run(rs).pipeline()
     scores = Scores(label_map)
     for seq in seqs:
         labels = rs.arrays(seq, pipeline[pipeline.labels].contract)

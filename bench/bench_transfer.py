@@ -21,7 +21,7 @@ kept and reused while current.
 
 The training stream that keeps these cells held out::
 
-    dsnet train --stream N --stream-styles classic,residential,arterial,downtown,country \\
+    dsnet train dsnet --stream N --stream-styles classic,residential,arterial,downtown,country \\
         --stream-sensors hdl64,ouster64,ouster128,vlp16 ...
 """
 

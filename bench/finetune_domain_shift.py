@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import torch
 
+from dsnet_core.checkpoints import bundled_checkpoint
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
-from dsnet_core.model.bundle import bundled_checkpoint
 from dsnet_core.model.checkpoint import read_card
 from dsnet_core.model.presets import get_preset
 from dsnet_core.review.folder import ReviewFrame, write_review_folder

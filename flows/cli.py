@@ -15,7 +15,7 @@ from flows.commands.label import label, status
 from flows.commands.review import review
 from flows.commands.serve import serve
 from flows.commands.synth import synth
-from flows.commands.train import train
+from flows.commands.train import register_methods, train
 
 app = typer.Typer(
     name="dsnet",
@@ -30,7 +30,8 @@ app.command()(demo)
 app.command(name="eval")(eval_command)
 app.command()(label)
 app.command()(status)
-app.command()(train)
+register_methods()
+app.add_typer(train, name="train")
 app.command()(export)
 app.command()(dashboard)
 app.command()(serve)

@@ -28,6 +28,7 @@ from storage.errors import StoreError
 from storage.run import RunStore
 from tasks.base import labels_contract
 from tasks.ingest import FRAMES
+from tasks.run_config import read_run
 
 
 @dataclass
@@ -60,7 +61,7 @@ def final_labels(
             what was written (the store's cheap check before the first frame, then each frame's
             digests as it is read): never a label made of fill values.
     """
-    contract = labels_contract(store.read_run_config().get("labels_stage", "stitch"))
+    contract = labels_contract(read_run(store).labels())
     found = False
     for seq in sorted(sequences if sequences is not None else store.sequences()):
         m = store.read_manifest(seq, contract.stage)
@@ -155,10 +156,7 @@ class _SourcePoints:
         if not self.dropped[seq].get(frame_id):
             return label
         if self.reader is None:
-            from dsnet_core.io.formats import open_log
-
-            run = self.store.read_run_config()
-            self.reader = open_log(run["data"], run.get("format", "auto"), run.get("reader_options"))
+            self.reader = read_run(self.store).open_log()
         if seq not in self.refs:
             self.refs[seq] = {f.frame_id: f for f in self.reader.frames(seq)}
         keep = self.reader.kept_points(self.refs[seq][frame_id])
@@ -180,5 +178,5 @@ EXPORT_FORMATS = ("semantickitti", "nuscenes", "folder", "rosbag")
 def default_export_format(root: str, storage_options: dict | None = None) -> str:
     """The format a run exports in by default: its log's (``semantickitti`` for a run of an
     unregistered format, or one recorded before formats existed)."""
-    fmt = RunStore(root, storage_options).read_run_config().get("format", "semantickitti")
+    fmt = read_run(RunStore(root, storage_options)).format
     return fmt if fmt in EXPORT_FORMATS else "semantickitti"

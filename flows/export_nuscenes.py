@@ -55,9 +55,9 @@ def model_label_map(store: RunStore):
     from flows.report.merge import model_plan
     from storage.errors import StoreError
     from tasks.base import CLASS_MAP
-    from tasks.methods import run_pipeline
+    from tasks.run_config import read_run
 
-    plan = model_plan(store, run_pipeline(store.read_run_config()), sorted(store.sequences()))
+    plan = model_plan(store, read_run(store).pipeline(), sorted(store.sequences()))
     if CLASS_MAP not in plan:
         raise StoreError(store.uri, "no stage of this run recorded the model's class map")
     return label_map_from_class_map(plan[CLASS_MAP])
@@ -87,10 +87,12 @@ def export_nuscenes(
     from dsnet_core.metrics import write_panoptic_npz
 
     store = RunStore(root, storage_options)
-    run = store.read_run_config()
-    if run.get("format") != "nuscenes":
+    from tasks.run_config import read_run
+
+    run = read_run(store)
+    if run.format != "nuscenes":
         raise ExportError(
-            f"{store.uri}: the run labelled a {run.get('format', 'semantickitti')} log; nuScenes results are "
+            f"{store.uri}: the run labelled a {run.format} log; nuScenes results are "
             "keyed by sample_data tokens, which only a nuscenes log has (export it in its own format)"
         )
     model = model_label_map(store)

@@ -27,9 +27,9 @@ def write_frame_confidence(store: RunStore, pipeline: Pipeline | None = None) ->
     """The ``frame_confidence`` report table of every labelled frame (scored or not); its row count."""
     from flows.report.confidence import frame_confidence_rows
     from flows.report.tables import REPORT_TABLES
-    from tasks.methods import run_pipeline
+    from tasks.run_config import read_run
 
-    pipeline = pipeline or run_pipeline(store.read_run_config())
+    pipeline = pipeline or read_run(store).pipeline()
     rows = frame_confidence_rows(store, pipeline, store.sequences())
     store.write_run_table(REPORT_TABLES["frame_confidence"], rows)
     return len(rows)

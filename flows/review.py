@@ -1,5 +1,5 @@
 """The review export: a run's least confident frames as a SemanticKITTI-layout folder with the
-predicted labels, for a person to correct and ``dsnet train DIR --init-from CKPT`` to learn from."""
+predicted labels, for a person to correct and ``dsnet train dsnet DIR --init-from CKPT`` to learn from."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from dsnet_core.review.folder import ReviewFrame, write_review_folder
 from flows.report.confidence import frame_confidence_rows
 from storage.run import RunStore
 from tasks.base import labels_contract
-from tasks.methods import run_pipeline
+from tasks.run_config import read_run
 
 TERMS = ("score", "semantic", "agreement", "size", "stitch", "n_instances")
 
@@ -21,17 +21,15 @@ def export_review(root: str, out: str | Path, top: int, storage_options: dict | 
     Raises:
         ConfigError: ``top`` < 1, the run has no labelled frame, or ``out`` already holds frames.
     """
-    from dsnet_core.io.formats import open_log
-
     if top < 1:
         raise ConfigError(f"--top must be at least 1, got {top}")
     store = RunStore(root, storage_options)
-    run = store.read_run_config()
-    pipeline = run_pipeline(run)
+    run = read_run(store)
+    pipeline = run.pipeline()
     rows = frame_confidence_rows(store, pipeline, store.sequences())[:top]
     if not rows:
         raise ConfigError(f"{store.uri}: no labelled frames to review (has `dsnet label` finished?)")
-    reader = open_log(run["data"], run.get("format", "auto"), run.get("reader_options"))
+    reader = run.open_log()
     labels = labels_contract(pipeline.labels)
     frames = []
     for r in rows:
@@ -43,7 +41,7 @@ def export_review(root: str, out: str | Path, top: int, storage_options: dict | 
     infer = store.read_manifest(rows[0]["sequence"], "infer")
     source = {
         "run": store.uri,
-        "data": str(run["data"]),
+        "data": run.data,
         "checkpoint": None if infer is None else infer.plan.get("checkpoint"),
         "ranked_by": "frame confidence score (lowest first)",
     }

@@ -12,9 +12,10 @@ from typing import Any
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from flows.request import LabelRequest
-from storage.errors import StoreError
+from storage.errors import NoRunConfigError, StoreError
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
+from tasks.run_config import RunConfig, read_run
 
 SUMMARY_COLUMNS = ("sequence", "stage", "action", "blocks_run", "items", "points", "seconds", "fingerprint")
 
@@ -54,20 +55,26 @@ def check_same_log(store: RunStore, request: LabelRequest) -> None:
         StoreError: naming the store, the log it holds and the one requested.
     """
     try:
-        previous = store.read_run_config()
-    except StoreError:
+        previous = read_run(store)
+    except NoRunConfigError:
         return  # a new store
-    if _same_place(previous.get("data"), request.data):
+    if _same_place(previous.data, request.data):
         return
     raise StoreError(
         store.uri,
-        f"holds runs of the log {previous.get('data')}, not {request.data}: give this log its own --run "
+        f"holds runs of the log {previous.data}, not {request.data}: give this log its own --run "
         "folder (or remove this one)",
     )
 
 
+def resolved_location(data: str) -> str:
+    """Where a log is, independent of the working directory: a local path made absolute, a URL as
+    given (what the run config records, so a run folder accepts its log from any directory)."""
+    return data if "://" in data else str(Path(data).expanduser().resolve())
+
+
 def _same_place(a: str | None, b: str) -> bool:
-    if a is None or a == b:
+    if not a or a == b:
         return True
     if "://" in a or "://" in b:
         return a.rstrip("/") == b.rstrip("/")
@@ -81,7 +88,7 @@ def record_run(
     pipeline: Pipeline,
     log_format: str,
     sequences: list[str],
-) -> dict[str, Any]:
+) -> RunConfig:
     """Write the run's config to the store (``run.json`` and ``runs/<id>.json``) and return it; the
     caller holds the run's locks, so a run that lost them never rewrites ``run.json``.
 
@@ -90,19 +97,20 @@ def record_run(
     run options.
     """
     order = request.order(pipeline)
-    run = {
-        "code_version": code_version(),
+    run = RunConfig(
+        run_id=run_id,
+        code_version=code_version(),
         **pipeline.record(),
-        "data": str(request.data),
-        "format": log_format,
-        "reader_options": dict(request.reader_options),
-        "sequences": list(sequences),
-        "stages": request.stage_configs(pipeline, order),
-        "options": request.options.model_dump(),
-        "host": socket.gethostname(),
-        "started": time.time(),
-    }
-    store.write_run_config(run_id, run)
+        data=resolved_location(request.data),
+        format=log_format,
+        reader_options=dict(request.reader_options),
+        sequences=list(sequences),
+        stages=request.stage_configs(pipeline, order),
+        options=request.options,
+        host=socket.gethostname(),
+        started=time.time(),
+    )
+    store.write_run_config(run_id, run.model_dump(mode="json", exclude_none=True))
     return run
 
 

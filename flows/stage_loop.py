@@ -26,6 +26,7 @@ from storage.errors import StoreError, as_write_error
 from storage.run import RunStore
 from tasks.base import RunOptions
 from tasks.pipeline import Pipeline
+from tasks.run_config import RunConfig
 from tasks.runner import BlockJob, Decision, finalize_stage, mark_failed, prepare_stage, run_block
 
 
@@ -114,7 +115,7 @@ def run_stage(
     pipeline: Pipeline,
     stage: str,
     sequences: list[str],
-    run: dict[str, Any],
+    run: RunConfig,
     state: RunState,
     force: bool,
 ) -> None:

@@ -19,6 +19,7 @@ from flows.publish import dataset_key, publish
 from flows.request import LabelRequest
 from storage.errors import StoreError
 from storage.run import RunStore
+from tasks.run_config import RunConfig
 from tasks.runner import stage_fingerprint, stage_state
 
 
@@ -31,12 +32,12 @@ def pending_sequences(request: LabelRequest) -> list[str]:
     first = order[0]
     store = RunStore(request.root, request.storage_options)
     reader = request.open_log()
-    run = {
-        "data": str(request.data),
-        "format": reader.format,
-        "reader_options": dict(request.reader_options),
-        "stages": request.stage_configs(pipeline),
-    }
+    run = RunConfig(
+        data=str(request.data),
+        format=reader.format,
+        reader_options=dict(request.reader_options),
+        stages=request.stage_configs(pipeline),
+    )
     out = []
     for seq in reader.sequences():
         m = store.read_manifest(seq, first)

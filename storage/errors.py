@@ -12,6 +12,14 @@ class StoreError(Exception):
         super().__init__(f"{where}: {problem}")
 
 
+class NoRunConfigError(StoreError):
+    """The root holds no run config: not a run store (yet), or an unknown run id."""
+
+
+class StoreFormatError(StoreError):
+    """The store was written in another store format: relabel into a new run folder."""
+
+
 class ContractError(StoreError):
     """An array or table does not match the stage's declared contract."""
 

@@ -34,7 +34,7 @@ from typing import Any
 
 from storage.arrays import StageArrays, digest
 from storage.contract import StageContract, TableSpec
-from storage.errors import DamagedStoreError, StoreError
+from storage.errors import DamagedStoreError, NoRunConfigError, StoreError, StoreFormatError
 from storage.fs import RootFS
 from storage.manifest import BlockFragment, Manifest
 from storage.names import check_plain_name
@@ -52,6 +52,10 @@ from storage.tables import (
 )
 
 DASHBOARD = "dashboard.html"
+STORE_FORMAT = 1
+"""The run store's format version, recorded in every run config (``store_format``). A store written
+in another format is refused with one line that says to relabel: the product carries no readers
+of formats from before its release."""
 BLOCK_RECORD = ".b2"
 CHANGED = "file does not match the checksum recorded when it was written"
 
@@ -96,15 +100,30 @@ class RunStore:
 
     # -- run config ----------------------------------------------------------------------------
     def write_run_config(self, run_id: str, config: dict[str, Any]) -> None:
-        self.root.write_json("run.json", {"run_id": run_id, **config})
-        self.root.write_json(f"runs/{run_id}.json", {"run_id": run_id, **config})
+        record = {**config, "run_id": run_id, "store_format": STORE_FORMAT}
+        self.root.write_json("run.json", record)
+        self.root.write_json(f"runs/{run_id}.json", record)
 
     def read_run_config(self, run_id: str | None = None) -> dict[str, Any]:
-        """The latest run's config, or that of ``run_id``."""
+        """The latest run's config, or that of ``run_id``.
+
+        Raises:
+            NoRunConfigError: no run config there.
+        StoreFormatError: one of another store format (:data:`STORE_FORMAT`).
+        """
         rel = "run.json" if run_id is None else f"runs/{run_id}.json"
         cfg = self.root.read_json(rel)
         if cfg is None:
-            raise StoreError(self.root.url(rel), "no run config here (not a run store, or unknown run)")
+            raise NoRunConfigError(self.root.url(rel), "no run config here (not a run store, or unknown run)")
+        if not isinstance(cfg, dict):
+            raise StoreFormatError(self.root.url(rel), "not a run config (expected a JSON object)")
+        found = cfg.get("store_format")
+        if found != STORE_FORMAT:
+            raise StoreFormatError(
+                self.root.url(rel),
+                f"a run store of format {found or 'before 1'}, this dsnet reads format {STORE_FORMAT}: "
+                "relabel the log into a new --run folder",
+            )
         return cfg
 
     def update_run_record(self, run_id: str, **fields: Any) -> None:

@@ -19,7 +19,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from storage.arrays import StageArrays
     from storage.manifest import Manifest
     from tasks.pipeline import Pipeline
+    from tasks.run_config import RunConfig
 
 CLASS_MAP = "class_map"
 """The plan key under which a model stage records its checkpoint's class map for downstream stages."""
@@ -63,7 +64,7 @@ class RunOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    on_error: str = "fail"  # "fail" | "skip" (quarantine bad frames)
+    on_error: Literal["fail", "skip"] = "fail"  # skip: quarantine bad frames and go on
     block_size: int = Field(25, ge=1)  # items per task
     lock_wait_s: float = Field(0.0, ge=0)  # how long a second run waits for a held lock
     stale_after_s: float = Field(60.0, gt=0)  # heartbeat age after which a lock is abandoned
@@ -129,6 +130,21 @@ class Stage(ABC):
         """Digest of inputs from outside the store (cheap: sizes and times, not content)."""
         return ""
 
+    def check_sources(self, pipeline: Pipeline) -> None:
+        """Raise ValueError when a stage this one reads does not declare what it reads (called by
+        :class:`~tasks.pipeline.Pipeline` as it is built; the default checks nothing)."""
+        return None
+
+    def require(self, pipeline: Pipeline, source: str, arrays: tuple[str, ...]) -> None:
+        """Raise ValueError unless stage ``source`` of ``pipeline`` declares ``arrays``."""
+        declared = {a.name for a in pipeline[source].arrays}
+        missing = [a for a in arrays if a not in declared]
+        if missing:
+            raise ValueError(
+                f"stage {self.name!r} reads arrays {missing} of stage {source!r}, which declares "
+                f"{sorted(declared) or 'none'}"
+            )
+
     @abstractmethod
     def plan(self, ctx: StageContext) -> Plan:
         """Items and sizes for one sequence (runs once per fresh stage run)."""
@@ -149,9 +165,8 @@ class StageContext:
         store: the run store.
         sequence: the sequence being processed.
         stage: the stage's name.
-        config: its validated config.
+        config: its validated config (an instance of the stage's ``Config``).
         run: the run config (data, format, stages, options).
-        options: run-level policy.
         pipeline: the run's stages (to find other stages' declarations).
         plan: the stage's plan meta (empty while planning).
     """
@@ -159,18 +174,15 @@ class StageContext:
     store: RunStore
     sequence: str
     stage: str
-    config: Any
-    run: dict[str, Any]
-    options: RunOptions
+    config: StageConfig
+    run: RunConfig
     pipeline: Pipeline
     plan: dict[str, Any] = field(default_factory=dict)
 
     @cached_property
     def reader(self) -> LogReader:
         """The log reader of the run's data source, opened as the run recorded it."""
-        from dsnet_core.io.formats import open_log
-
-        return open_log(self.run["data"], self.run.get("format", "auto"), self.run.get("reader_options"))
+        return self.run.open_log()
 
     @cached_property
     def frames(self):

@@ -42,12 +42,12 @@ class DplsStage(Stage):
 
     @staticmethod
     def checkpoint(ctx: StageContext):
-        from dsnet_core.model.bundle import resolve_dpls_checkpoint
+        from dsnet_core.checkpoints import resolve_dpls_checkpoint
 
         return resolve_dpls_checkpoint(ctx.config.checkpoint)
 
     def inputs(self, ctx: StageContext) -> str:
-        from dsnet_core.model.bundle import checkpoint_digest
+        from dsnet_core.checkpoints import checkpoint_digest
 
         return "checkpoint:" + checkpoint_digest(self.checkpoint(ctx))
 
@@ -66,7 +66,7 @@ class DplsStage(Stage):
             raise CheckpointError(
                 path / CARD,
                 "a DS-Net checkpoint without a semantic-prior input: label with --method dsnet, or train "
-                "a D-PLS one with dsnet train --method dpls",
+                "a D-PLS one with dsnet train dpls",
             )
         theirs, ours = prior.plan[CLASS_MAP], card.class_map
         if theirs["class_names"] != ours["class_names"] or theirs["things"] != ours["things"]:

@@ -60,12 +60,13 @@ class FuseStage(Stage):
     tables = (INSTANCES,)
 
     def __init__(self, source: str = "infer") -> None:
-        from tasks.shift import SOURCES
-
-        if source not in SOURCES:
-            raise ValueError(f"fuse cannot read stage {source!r}; sources are {SOURCES}")
         self.source = source
         self.upstream = (source, "shift")
+
+    def check_sources(self, pipeline) -> None:
+        from tasks.shift import MODEL_ARRAYS
+
+        self.require(pipeline, self.source, MODEL_ARRAYS)
 
     def plan(self, ctx: StageContext) -> Plan:
         infer = ctx.manifest(self.source)

@@ -120,12 +120,12 @@ class InferStage(Stage):
     @staticmethod
     def checkpoint(ctx: StageContext):
         """The checkpoint folder: the configured one, else the bundled model for align's k."""
-        from dsnet_core.model.bundle import resolve_checkpoint
+        from dsnet_core.checkpoints import resolve_checkpoint
 
         return resolve_checkpoint(ctx.config.checkpoint, volume_scans(ctx))
 
     def inputs(self, ctx: StageContext) -> str:
-        from dsnet_core.model.bundle import checkpoint_digest
+        from dsnet_core.checkpoints import checkpoint_digest
 
         return "checkpoint:" + checkpoint_digest(self.checkpoint(ctx))
 
@@ -143,7 +143,7 @@ class InferStage(Stage):
 
             raise ConfigError(
                 f"--equivariant {want}: checkpoint {path} was trained with --equivariant {cfg.equivariant}; "
-                "label with its n, or train one with this n (dsnet train --equivariant N)"
+                "label with its n, or train one with this n (dsnet train dsnet --equivariant N)"
             )
         return Plan(
             n_items=align.n_items,

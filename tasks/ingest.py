@@ -133,7 +133,7 @@ class IngestStage(Stage):
         every scan and label file, and the poses and times values."""
         reader = ctx.reader
         h = hashlib.blake2b(digest_size=16)
-        h.update(repr((reader.format, sorted((ctx.run.get("reader_options") or {}).items()))).encode())
+        h.update(repr((reader.format, sorted(ctx.run.reader_options.items()))).encode())
         frames = reader.frames(ctx.sequence)
         h.update(repr([(_stat(f.scan_path), _stat(f.label_path)) for f in frames]).encode())
         try:
@@ -198,7 +198,7 @@ class IngestStage(Stage):
                 if odometry is not None:
                     pose = odometry.register(scan, str(frame.scan_path))
             except (DataFormatError, OdometryError) as exc:
-                if ctx.options.on_error != "skip":
+                if ctx.run.options.on_error != "skip":
                     raise
                 row.update(status="quarantined", reason=str(exc))
                 yield ItemResult(i, rows={"frames": [row]}, counts={"frames": 1, "quarantined": 1})

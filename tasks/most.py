@@ -92,12 +92,12 @@ class MostStage(Stage):
 
     @staticmethod
     def checkpoint(ctx: StageContext):
-        from dsnet_core.model.bundle import resolve_most_checkpoint
+        from dsnet_core.checkpoints import resolve_most_checkpoint
 
         return resolve_most_checkpoint(ctx.config.checkpoint, ctx.config.scans)
 
     def inputs(self, ctx: StageContext) -> str:
-        from dsnet_core.model.bundle import checkpoint_digest
+        from dsnet_core.checkpoints import checkpoint_digest
 
         return "checkpoint:" + checkpoint_digest(self.checkpoint(ctx))
 
@@ -195,7 +195,7 @@ def _window_poses(ctx: StageContext, refs: list[int], pose: dict) -> list[np.nda
         from dsnet_core.errors import PoseFormatError
 
         raise PoseFormatError(
-            Path(str(ctx.run["data"])),
+            Path(str(ctx.run.data)),
             f"most with scans={ctx.config.scans} accumulates past scans and needs poses; the log has none "
             "for sequence " + ctx.sequence + " (estimate them: dsnet label --estimate-poses, or --scans 1)",
         )

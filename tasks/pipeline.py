@@ -1,8 +1,7 @@
 """A method is an ordered list of stages: :class:`Pipeline`.
 
-The runner, the flows and the report take a pipeline as an argument; there is no global
-registry to patch. A test adds a stage by building its own pipeline; a new method adds a factory
-to :mod:`tasks.methods`.
+The runner, the flows and the report take a pipeline as an argument. A test adds a stage by
+building its own pipeline; a method (:mod:`tasks.methods`) builds its pipeline from its stages.
 """
 
 from __future__ import annotations
@@ -41,6 +40,8 @@ class Pipeline:
                     f"pipeline {self.name!r}: stage {stage.name!r} reads {missing}, not run before it"
                 )
             seen.append(stage.name)
+        for stage in self.stages:
+            stage.check_sources(self)
         if self.labels not in seen:
             raise ValueError(f"pipeline {self.name!r}: its labels stage {self.labels!r} is not one of {seen}")
         if FRAME_LABEL not in self[self.labels].arrays:

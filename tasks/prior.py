@@ -73,7 +73,7 @@ class PriorStage(Stage):
 
     @staticmethod
     def checkpoint(ctx: StageContext):
-        from dsnet_core.model.bundle import resolve_checkpoint
+        from dsnet_core.checkpoints import resolve_checkpoint
 
         return resolve_checkpoint(ctx.config.checkpoint, 1)
 
@@ -81,7 +81,7 @@ class PriorStage(Stage):
         from dsnet_core.io.prior import find_prior
 
         if ctx.config.source == "model":
-            from dsnet_core.model.bundle import checkpoint_digest
+            from dsnet_core.checkpoints import checkpoint_digest
 
             return "checkpoint:" + checkpoint_digest(self.checkpoint(ctx))
         h = hashlib.blake2b(digest_size=16)
@@ -192,7 +192,7 @@ def _files_label_map(ctx: StageContext):
         return load_label_map(ctx.config.label_map)
     if ctx.reader.label_map is None:
         raise ConfigError(
-            f"the log {ctx.run['data']} has no label map of its own: name the prior files' one "
+            f"the log {ctx.run.data} has no label map of its own: name the prior files' one "
             "(--prior-label-map NAME|YAML)"
         )
     return ctx.reader.label_map

@@ -28,8 +28,12 @@ from storage.errors import StoreError
 from storage.locks import check_owner
 from storage.manifest import BlockFragment, Manifest, fingerprint
 from storage.run import Damage, RunStore
-from tasks.base import RunOptions, Stage, StageContext
+from tasks.base import Stage, StageContext
 from tasks.pipeline import Pipeline
+from tasks.run_config import RunConfig
+
+Run = RunConfig | dict[str, Any]
+"""A run config, or a dict of one (tests and benchmarks write them by hand)."""
 
 log = logging.getLogger(__name__)
 
@@ -59,23 +63,22 @@ class Decision:
     jobs: list[BlockJob] = field(default_factory=list)
 
 
-def resolved_config(stage: Stage, run: dict[str, Any]) -> dict[str, Any]:
-    """The stage's config from the run config, validated and with defaults filled in."""
-    cfg = stage.Config.model_validate(run.get("stages", {}).get(stage.name, {}))
-    return cfg.model_dump(mode="json")
+def resolved_config(stage: Stage, run: Run) -> dict[str, Any]:
+    """The stage's config from the run config, validated and with defaults filled in (JSON)."""
+    return RunConfig.of(run).stage_config(stage).model_dump(mode="json")
 
 
 def make_context(
-    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: dict, plan: dict | None = None
+    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: Run, plan: dict | None = None
 ) -> StageContext:
     spec = pipeline[stage]
+    run = RunConfig.of(run)
     return StageContext(
         store=store,
         sequence=sequence,
         stage=stage,
-        config=spec.Config.model_validate(resolved_config(spec, run)),
+        config=run.stage_config(spec),
         run=run,
-        options=RunOptions.model_validate(run.get("options", {})),
         pipeline=pipeline,
         plan=plan or {},
     )
@@ -92,7 +95,7 @@ def upstream_fingerprints(store: RunStore, pipeline: Pipeline, sequence: str, st
     return out
 
 
-def stage_fingerprint(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: dict) -> str:
+def stage_fingerprint(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: Run) -> str:
     """What a stage's fingerprint would be now (its upstream stages must be done)."""
     spec = pipeline[stage]
     ctx = make_context(store, pipeline, sequence, stage, run)
@@ -105,12 +108,13 @@ def prepare_stage(
     pipeline: Pipeline,
     sequence: str,
     stage: str,
-    run: dict,
+    run: Run,
     run_id: str,
     force: bool = False,
 ) -> Decision:
     """Decide skip / resume / fresh; on fresh, clear the stage and its downstream and plan it."""
     spec = pipeline[stage]
+    run = RunConfig.of(run)
     ctx = make_context(store, pipeline, sequence, stage, run)
     config = resolved_config(spec, run)
     upstream = upstream_fingerprints(store, pipeline, sequence, stage)
@@ -145,7 +149,7 @@ def prepare_stage(
     plan = spec.plan(ctx)
     if spec.arrays:
         store.create_arrays(sequence, spec.contract, plan.n_items, plan.max_points, plan.omit, plan.dims)
-    size = max(1, RunOptions.model_validate(run.get("options", {})).block_size)
+    size = run.options.block_size
     blocks = [list(range(i, min(i + size, plan.n_items))) for i in range(0, plan.n_items, size)]
     if plan.blocks is not None:
         blocks = [list(b) for b in plan.blocks if b]
@@ -312,7 +316,7 @@ def run_stage_plain(
     pipeline: Pipeline,
     sequence: str,
     stage: str,
-    run: dict,
+    run: Run,
     run_id: str,
     force: bool = False,
 ) -> Manifest:
@@ -330,7 +334,7 @@ def stage_state(
     pipeline: Pipeline,
     sequence: str,
     stage: str,
-    run: dict | None = None,
+    run: Run | None = None,
     full: bool = False,
 ) -> tuple[str, Manifest | None, int]:
     """(state, manifest, finished blocks) for ``dsnet status``, from the store alone.

@@ -142,11 +142,11 @@ class ScoreStage(Stage):
         """
         gt = ctx.reader.label_map
         if gt is None:
-            raise ConfigError(f"{ctx.run['data']}: the log's format has no label map to score against")
+            raise ConfigError(f"{ctx.run.data}: the log's format has no label map to score against")
         try:
             return make_evaluator(ctx.config, gt, ctx.label_map)
         except ConfigError as exc:
-            raise ConfigError(f"{ctx.run['data']}: {exc}") from None
+            raise ConfigError(f"{ctx.run.data}: {exc}") from None
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         reader = ctx.reader

@@ -72,12 +72,13 @@ def cluster_volume(clusterer, xyz: np.ndarray, centres: np.ndarray, features: np
     return out.ids, out.seeds, out.converged
 
 
-SOURCES = ("infer", "dpls")
-"""Stages whose per-volume ``sem``, ``offsets`` and ``features`` (infer's arrays) ``shift`` clusters."""
+MODEL_ARRAYS = ("sem", "offsets", "features")
+"""What ``shift`` (and ``fuse``) read of their source: a model stage's per-volume predicted class,
+offsets to instance centres and instance features (``infer``'s arrays; D-PLS's stage has them too)."""
 
 
 class ShiftStage(Stage):
-    """Clusters ``source``'s thing points: DS-Net's ``infer`` (default) or D-PLS's ``dpls``."""
+    """Clusters the thing points of ``source``, any stage that declares :data:`MODEL_ARRAYS`."""
 
     name = "shift"
     version = "1"
@@ -95,10 +96,11 @@ class ShiftStage(Stage):
     )
 
     def __init__(self, source: str = "infer") -> None:
-        if source not in SOURCES:
-            raise ValueError(f"shift cannot cluster stage {source!r}; sources are {SOURCES}")
         self.source = source
         self.upstream = (source,)
+
+    def check_sources(self, pipeline) -> None:
+        self.require(pipeline, self.source, MODEL_ARRAYS)
 
     def plan(self, ctx: StageContext) -> Plan:
         infer = ctx.manifest(self.source)

@@ -66,14 +66,17 @@ TRACKED = TableSpec(
 )
 
 
-SOURCES = ("fuse", "most")
-"""Stages whose per-volume ``sem`` and ``inst`` arrays ``track`` can follow."""
+INSTANCE_ARRAYS = ("sem", "inst")
+"""What ``track`` follows: a stage's per-volume class and volume-local instance id."""
+DETECTIONS = "detections"
+"""A source table of per-volume detections (id, class, centre, velocity): when the source declares
+one (MOST), tracks follow its centres and learned velocities instead of instance centroids."""
 
 
 class TrackStage(Stage):
-    """Tracks ``source``'s instances: DS-Net's fused instances by their centroids (constant-velocity
-    model), or MOST's detections by their modal centres and learned velocities (its ``detections``
-    table)."""
+    """Tracks the instances of ``source`` (any stage declaring :data:`INSTANCE_ARRAYS`): by their
+    centroids with a constant-velocity model (fused instances), or, when the source declares a
+    :data:`DETECTIONS` table, by its detections' centres and learned velocities (MOST)."""
 
     name = "track"
     version = "1"
@@ -83,10 +86,11 @@ class TrackStage(Stage):
     tables = (TRACKED,)
 
     def __init__(self, source: str = "fuse") -> None:
-        if source not in SOURCES:
-            raise ValueError(f"track cannot follow stage {source!r}; sources are {SOURCES}")
         self.source = source
         self.upstream = (source, "align")
+
+    def check_sources(self, pipeline) -> None:
+        self.require(pipeline, self.source, INSTANCE_ARRAYS)
 
     def plan(self, ctx: StageContext) -> Plan:
         return sequential_frames_plan(ctx)
@@ -116,8 +120,9 @@ class TrackStage(Stage):
             tracker = Tracker(label_map, **ctx.config.model_dump())
         else:
             log.info("track %s resumes after frame %d from its saved state", ctx.sequence, order[start - 1])
-        align, fuse = ctx.arrays("align"), ctx.arrays(self.source)
-        detections = _detections(ctx) if self.source == "most" else None
+        align, instances = ctx.arrays("align"), ctx.arrays(self.source)
+        has_detections = any(t.name == DETECTIONS for t in ctx.pipeline[self.source].tables)
+        detections = _detections(ctx, self.source) if has_detections else None
         cached: tuple[int, dict, dict] | None = None
         throttle = StateThrottle()
         for k in range(start, len(order)):
@@ -127,13 +132,13 @@ class TrackStage(Stage):
                 cached = (
                     v,
                     align.read_item(v, ["points", "source_frame", "source_index"]),
-                    fuse.read_item(v),
+                    instances.read_item(v),
                 )
-            _, vol, fused = cached
+            _, vol, found = cached
             sel = vol["source_frame"] == f
             xyz = vol["points"][sel, :3]
-            sem = fused["sem"][sel].astype(np.int64)
-            inst = fused["inst"][sel].astype(np.int64)
+            sem = found["sem"][sel].astype(np.int64)
+            inst = found["inst"][sel].astype(np.int64)
             thing = thing_of[sem]
             ref = refs[v]
             world = None if pose.get(ref) is None else np.asarray(pose[ref], np.float64).reshape(4, 4)
@@ -186,9 +191,9 @@ class TrackStage(Stage):
         return Tracker.from_state(saved["state"], label_map), k + 1, summary
 
 
-def _detections(ctx: StageContext) -> dict[int, dict[str, np.ndarray]]:
-    """MOST's ``detections`` table by volume: ids, centres, classes, velocities."""
-    t = ctx.table("most", "detections")
+def _detections(ctx: StageContext, source: str) -> dict[int, dict[str, np.ndarray]]:
+    """The source's :data:`DETECTIONS` table by volume: ids, centres, classes, velocities."""
+    t = ctx.table(source, DETECTIONS)
     index = t["index"].to_numpy()
     cols = {
         "id": t["id"].to_numpy().astype(np.int64),

@@ -67,6 +67,7 @@ def _label_run(log: Path, ckpt: Path, root: Path, scans: int):
     }
     pipeline = get_pipeline("dsnet")
     assert pipeline.names() == list(STAGES)
+    run |= pipeline.record()
     store.write_run_config("golden", run)
     for stage in STAGES:
         run_stage_plain(store, pipeline, "00", stage, run, "golden")

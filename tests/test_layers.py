@@ -98,3 +98,63 @@ def test_no_stage_names_a_dataset():
         if re.search(r"kitti|nuscenes", line, re.IGNORECASE)
     ]
     assert hits == []
+
+
+METHOD_HOMES = {
+    "dsnet": ("tasks/methods/dsnet.py", "tasks/methods/dsnet_train.py"),
+    "most": ("tasks/methods/most.py", "tasks/most.py"),
+    "dpls": ("tasks/methods/dpls.py", "tasks/dpls.py"),
+}
+"""Where each method may be named: its method module and its own stage modules."""
+
+
+def test_no_method_named_outside_its_module():
+    """Flows and stages ask the registry (``tasks.methods``) for a method, and stages check what
+    their source stage declares: no string literal names a method anywhere else."""
+    from tasks.methods import METHODS
+
+    assert set(METHODS) == set(METHOD_HOMES)
+    hits = []
+    for layer in ("flows", "tasks"):
+        for path in (REPO / layer).rglob("*.py"):
+            rel = str(path.relative_to(REPO))
+            tree = ast.parse(path.read_text(), filename=rel)
+            program = (
+                {  # the command line's own name (``Typer(name="dsnet")``) is not the method
+                    id(k.value)
+                    for n in ast.walk(tree)
+                    if isinstance(n, ast.Call)
+                    for k in n.keywords
+                    if k.arg == "name"
+                }
+                if rel == "flows/cli.py"
+                else set()
+            )
+            docstrings = {
+                id(n.body[0].value)
+                for n in ast.walk(tree)
+                if isinstance(n, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+                and n.body
+                and isinstance(n.body[0], ast.Expr)
+                and isinstance(n.body[0].value, ast.Constant)
+            }
+            for node in ast.walk(tree):
+                if (
+                    isinstance(node, ast.Constant)
+                    and node.value in METHOD_HOMES
+                    and id(node) not in docstrings | program
+                    and rel not in METHOD_HOMES[node.value]
+                ):
+                    hits.append(f"{rel}:{node.lineno} {node.value!r}")
+    assert hits == []
+
+
+def test_model_and_method_packages_do_not_import_upwards():
+    """``dsnet_core.model`` (the shared network) never imports a method package built on it."""
+    bad = [
+        f"{p.relative_to(REPO)} imports {m}"
+        for p in (REPO / "dsnet_core" / "model").rglob("*.py")
+        for m in _imports(p)
+        if m.startswith(("dsnet_core.most", "dsnet_core.dpls"))
+    ]
+    assert bad == []

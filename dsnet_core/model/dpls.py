@@ -106,7 +106,7 @@ class DplsPredictor:
             raise CheckpointError(
                 Path(path) / CARD,
                 "a DS-Net checkpoint without a semantic-prior input: label with --method dsnet, or train "
-                "a D-PLS one with dsnet train --method dpls",
+                "a D-PLS one with dsnet train dpls",
             )
         return cls(model, card, device)
 

@@ -42,7 +42,7 @@ def import_checkpoint(
         out: checkpoint folder to write (created).
         kind: ``"dsnet"`` (3D, bandwidths 0.2/1.7/3.2 m), ``"dsnet4d"`` (2-scan, 0.2/1.8/3.4 m) or
             ``"cylinder3d"`` (semantic only; the instance head is left untrained, for
-            ``dsnet train --init-from``).
+            ``dsnet train dsnet --init-from``).
         layout: ``"auto"``, ``"spconv1"`` or ``"spconv2"`` (sparse weights' layout).
         rulebooks: ``"auto"`` (spconv 1.x layout → ``"spconv1-shared"``, 2.x → ``"per-layer"``).
         label_map: the classes the file was trained on (default: SemanticKITTI, both references').

@@ -149,7 +149,7 @@ def count_parameters(module: nn.Module) -> int:
 def lift_model(model: torch.nn.Module, n: int, pooling: str = "mean") -> torch.nn.Module:
     """A plain trained DS-Net lifted to C_n: the same weights shared by the n rotated copies (its
     semantics start as the mean (or max) over n rotations, i.e. ``--tta n`` without flips), and a
-    fresh anchor scorer (eq. 9) for the offsets, to be fine-tuned (``dsnet train --init-from PLAIN
+    fresh anchor scorer (eq. 9) for the offsets, to be fine-tuned (``dsnet train dsnet --init-from PLAIN
     --equivariant n``).
 
     Raises:

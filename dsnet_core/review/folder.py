@@ -7,7 +7,7 @@
     DIR/review.json                         source run, and per frame its confidence terms
 
 Frame ids are the source log's, so a corrected label maps back to its scan. The folder is a log
-that ``dsnet train DIR --init-from CKPT`` reads directly (single scans: no poses are written).
+that ``dsnet train dsnet DIR --init-from CKPT`` reads directly (single scans: no poses are written).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Training D-PLS's prior-conditioned instance network (``dsnet train --method dpls``).
+"""Training D-PLS's prior-conditioned instance network (``dsnet train dpls``).
 
 The network (:mod:`dsnet_core.model.dpls`) starts from a trained DS-Net checkpoint (its offsets
 exactly, the prior's input columns at zero) and trains everything but a semantic head it does not
@@ -133,7 +133,7 @@ class DplsTrainer:
             confusion = np.asarray(self.card.training_data["prior_noise"]["confusion"])
         else:
             if init_from is None:
-                raise ConfigError("dsnet train --method dpls starts from a trained DS-Net: pass --init-from")
+                raise ConfigError("dsnet train dpls starts from a trained DS-Net: pass --init-from")
             self.model, confusion = self._start(init_from, label_map, confusion)
         self.noise = PriorNoise(confusion, strength=config.strength, blobs_per_100k=config.blobs_per_100k)
         self.card.training_data["train_config"] = asdict(config)

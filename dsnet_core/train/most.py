@@ -159,8 +159,9 @@ class MostTrainer:
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 
     # -- schedule --------------------------------------------------------------------------
-    def run(self) -> ModelCard:
-        """Train every pending epoch of every stage; returns the final card."""
+    def run(self, on_step=None) -> ModelCard:
+        """Train every pending epoch of every stage; returns the final card. ``on_step(stage, epoch,
+        step, steps, loss)`` after every step."""
         for stage in self.cfg.stages():
             done, total = self._valid_epochs(stage), self.cfg.epochs.get(stage, 0)
             if done >= total:
@@ -172,7 +173,7 @@ class MostTrainer:
                 t0 = time.perf_counter()
                 for group in opt.param_groups:
                     group["lr"] = self.cfg.epoch_lr(epoch, total)
-                loss = self._train_epoch(stage, epoch, opt)
+                loss = self._train_epoch(stage, epoch, opt, on_step)
                 record = {"stage": stage, "epoch": epoch + 1, "train_loss": loss, **self.validate(stage)}
                 record["seconds"] = round(time.perf_counter() - t0, 2)
                 record["lr"] = self.cfg.epoch_lr(epoch, total)
@@ -208,7 +209,7 @@ class MostTrainer:
             p.requires_grad_(name.startswith("pointseg.") == (stage == "member"))
         return torch.optim.Adam([p for p in self.model.parameters() if p.requires_grad], lr=self.cfg.lr)
 
-    def _train_epoch(self, stage: str, epoch: int, opt: torch.optim.Optimizer) -> float:
+    def _train_epoch(self, stage: str, epoch: int, opt: torch.optim.Optimizer, on_step=None) -> float:
         rng = np.random.default_rng([self.cfg.seed, MOST_STAGES.index(stage), epoch])
         torch.manual_seed(int(rng.integers(2**31)))
         order = rng.permutation(len(self.train_items))
@@ -230,6 +231,8 @@ class MostTrainer:
             loss.backward()
             opt.step()
             losses.append(float(loss.detach()))
+            if on_step is not None:
+                on_step(stage, epoch + 1, step + 1, len(order), losses[-1])
             if (step + 1) % 25 == 0:
                 log.info(
                     "%s epoch %d step %d/%d: mean loss %.4f",

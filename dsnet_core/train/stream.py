@@ -1,4 +1,4 @@
-"""Training from an endless stream of never-seen synthetic sequences (``dsnet train --stream N``).
+"""Training from an endless stream of never-seen synthetic sequences (``dsnet train dsnet --stream N``).
 
 :class:`StreamLog` is a read-only log (the :class:`~dsnet_core.io.reader.LogReader` protocol) whose
 sequences are samples of :mod:`dsnet_core.synth.stream`, rendered in memory on demand. Every

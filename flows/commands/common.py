@@ -42,13 +42,28 @@ def errors_exit() -> Iterator[None]:
 
     try:
         yield
-    except (DsnetError, StoreError, ValueError, ValidationError) as exc:
+    except ValidationError as exc:
+        fail(validation_line(exc))
+    except (DsnetError, StoreError, ValueError) as exc:
         fail(exc)
     except OSError as exc:  # a full or read-only disk met outside the store's own writes
         typed = as_write_error(exc, "the output")
         if typed is None:
             raise
         fail(typed)
+
+
+def validation_line(exc) -> str:
+    """A pydantic ValidationError of command-line settings as one line naming each option:
+    ``--scans 0: Input should be greater than or equal to 1``."""
+    parts = []
+    for err in exc.errors():
+        loc = [str(p) for p in err.get("loc", ())]
+        name = "--" + loc[0].replace("_", "-") if len(loc) == 1 else ".".join(loc) or "value"
+        shown = err.get("input")
+        value = "" if isinstance(shown, dict) or shown is None else f" {shown!r}"
+        parts.append(f"{name}{value}: {err.get('msg', 'invalid')}")
+    return "; ".join(parts)
 
 
 def with_grid(config, grid: str | None):

@@ -24,16 +24,17 @@ def demo(
     import json
     import shutil
 
+    from dsnet_core.checkpoints import bundled_checkpoint, bundled_dir
     from dsnet_core.io.describe import summarize
     from dsnet_core.io.formats import open_log
-    from dsnet_core.model.bundle import bundled_checkpoint, bundled_dir
     from dsnet_core.model.checkpoint import read_card
     from flows.commands.describe import print_log_summary
     from flows.commands.eval import print_result, score_predictions
     from flows.commands.label import print_summary, run_label
     from flows.commands.synth import generate
     from flows.export import export_semantickitti
-    from flows.request import LabelRequest, stage_settings
+    from flows.request import LabelRequest
+    from tasks.methods import LabelSettings
 
     log, run, pred = out / "log", out / "run", out / "predictions"
     typer.echo(f"[1/5] generating a synthetic {sensor} log: 1 sequence × {frames} frames, seed {seed}")
@@ -65,9 +66,9 @@ def demo(
             fg=typer.colors.YELLOW,
         )
     typer.echo(f"[3/5] labelling with k = {scans} ({'3D' if scans == 1 else '4D'} panoptic) into {run}")
-    request = LabelRequest(
-        data=str(log), root=str(run), sequences=["00"], stages=stage_settings(scans, checkpoint=str(ckpt))
-    )
+    with errors_exit():
+        settings = LabelSettings(scans=scans, checkpoint=str(ckpt))
+        request = LabelRequest.from_settings(settings, data=str(log), root=str(run), sequences=["00"])
     summary = run_label(request)
     print_summary(summary)
     if any(r["action"] == "failed" for r in summary):

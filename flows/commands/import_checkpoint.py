@@ -34,4 +34,4 @@ def import_checkpoint(
         f"iterations; grid convention {imp['grid_convention']}"
     )
     if imp["semantic_only"]:
-        typer.echo(f"semantics only: train the instance head with dsnet train DATA --init-from {out}")
+        typer.echo(f"semantics only: train the instance head with dsnet train dsnet DATA --init-from {out}")

@@ -7,129 +7,77 @@ from collections.abc import Iterator
 
 import typer
 
-from flows.commands.common import (
-    FIXED_FRAME_HELP,
-    FORMAT_HELP,
-    READER_OPTION_HELP,
-    TOPIC_HELP,
-    errors_exit,
-)
+from flows.commands import options as o
+from flows.commands.common import errors_exit
+from tasks.methods import DEFAULT_METHOD
 
 
 def label(
     data: str = typer.Argument(..., help="Log root (any supported format; see --format)."),
     run: str = typer.Option(..., "--run", help="Run store root: a folder or s3://bucket/prefix."),
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
-    format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
-    reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
-    topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
-    fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
-    max_points: int = typer.Option(
-        None, "--max-points", min=1, help="Refuse frames with more points (default 2,000,000): memory guard."
+    format: o.Format = "auto",
+    reader_option: o.ReaderOption = None,
+    topic: o.Topic = None,
+    fixed_frame: o.FixedFrame = None,
+    max_points: o.MaxPoints = None,
+    estimate_poses: o.EstimatePoses = False,
+    method: o.MethodName = DEFAULT_METHOD,
+    scans: o.Scans = None,
+    stride: o.Stride = None,
+    clusterer: o.Clusterer = None,
+    temporal: o.Temporal = "auto",
+    semantic_prior: o.SemanticPrior = None,
+    prior_label_map: o.PriorLabelMap = None,
+    checkpoint: o.Checkpoint = None,
+    device: o.Device = None,
+    tta: o.Tta = 1,
+    tta_flip: o.TtaFlip = False,
+    equivariant: o.Equivariant = None,
+    until: o.Until = None,
+    from_stage: str = typer.Option(None, help="Recompute this stage and downstream.", rich_help_panel=o.RUN),
+    force: bool = typer.Option(False, help="Recompute every stage.", rich_help_panel=o.RUN),
+    on_error: str = typer.Option(
+        "fail", help="fail: stop on a bad frame; skip: quarantine it and go on.", rich_help_panel=o.RUN
     ),
-    method: str = typer.Option("dsnet", "--method", help="Labelling method (see the README's method table)."),
-    scans: int = typer.Option(
-        None,
-        min=1,
-        max=16,
-        help="k: scans per 4D volume for dsnet and dpls (1 = 3D, default 2); for most the current scan "
-        "plus k-1 past scans (default 3).",
+    block_size: int = typer.Option(25, min=1, help="Frames or volumes per task.", rich_help_panel=o.RUN),
+    lock_wait: float = typer.Option(
+        0.0, min=0.0, help="Seconds to wait for another run's lock.", rich_help_panel=o.RUN
     ),
-    stride: int = typer.Option(None, min=1, help="Step between volumes (default k-1, or 1 for k=1)."),
-    checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled demo model)."),
-    clusterer: str = typer.Option(
-        None, help="dynamic_shift (default), meanshift, dbscan, hdbscan or bfs; or a JSON clusterer config."
-    ),
-    estimate_poses: bool = typer.Option(
-        False,
-        "--estimate-poses",
-        help="Estimate LiDAR poses by KISS-ICP odometry for sequences without poses.txt (needs the "
-        "[odometry] extra); a log's own poses always win.",
-    ),
-    until: str = typer.Option(None, help="Stop after this stage (e.g. align)."),
-    from_stage: str = typer.Option(None, help="Recompute this stage and everything downstream."),
-    force: bool = typer.Option(False, help="Recompute every stage."),
-    on_error: str = typer.Option("fail", help="fail: stop on a bad frame; skip: quarantine it and go on."),
+    debug: bool = typer.Option(False, "--debug", help="Show Prefect's tracebacks.", rich_help_panel=o.RUN),
     workers: int = typer.Option(
-        None, min=1, help="Run blocks on a local Dask cluster of N worker processes."
+        None, min=1, help="Blocks on a local Dask cluster of N processes.", rich_help_panel=o.SCALE
     ),
     dask_address: str = typer.Option(
-        None, help="Run blocks on an existing Dask scheduler (tcp://host:port)."
-    ),
-    block_size: int = typer.Option(25, min=1, help="Frames or volumes per task."),
-    lock_wait: float = typer.Option(
-        0.0, min=0.0, help="Seconds to wait for another run's lock before failing."
-    ),
-    debug: bool = typer.Option(False, "--debug", help="Show Prefect's tracebacks of failing tasks."),
-    temporal: str = typer.Option(
-        "auto",
-        "--temporal",
-        help="Sequence-wide ids: stitch (overlapping volumes, k > 1), track (each frame's instances "
-        "tracked by centre) or auto (track at --scans 1, else stitch).",
-    ),
-    device: str = typer.Option(
-        None, "--device", help="The model's torch device: cpu (default), cuda, cuda:1."
-    ),
-    tta: int = typer.Option(
-        1, "--tta", min=1, max=64, help="Test-time augmentation: average over N yaw rotations (1: off)."
-    ),
-    tta_flip: bool = typer.Option(False, "--tta-flip", help="With --tta: also average the mirror images."),
-    equivariant: int = typer.Option(
-        None, "--equivariant", min=1, help="Require a C_n-equivariant checkpoint trained with this n."
-    ),
-    semantic_prior: str = typer.Option(
-        None,
-        "--semantic-prior",
-        help="dpls: folder of per-scan semantic predictions of any network (DIR/sequences/SEQ/predictions/"
-        "ID.label or .npy, or DIR/SEQ/ID.label|.npy); default: the bundled model's semantics.",
-    ),
-    prior_label_map: str = typer.Option(
-        None,
-        "--prior-label-map",
-        help="dpls: label map of the --semantic-prior files, a bundled name or a YAML "
-        "(default: the log's own).",
+        None, help="Blocks on a Dask scheduler (tcp://host:port).", rich_help_panel=o.SCALE
     ),
 ) -> None:
-    """Label a log into a run store (dsnet: ingest → align → infer → shift → fuse → stitch|track →
-    score; most: ingest → align → most → track → score; dpls: ingest → align → prior → dpls → shift →
-    fuse → stitch|track → score), resuming whatever is already done there."""
-    if on_error not in ("fail", "skip"):
-        raise typer.BadParameter("--on-error must be 'fail' or 'skip'")
-    if workers and dask_address:
-        raise typer.BadParameter("give --workers or --dask-address, not both")
-    if scans is None:
-        scans = 3 if method == "most" else 2
-    from flows.request import LabelRequest, parse_reader_options, stage_settings
+    """Label a log into a run store, resuming whatever is already done there (dsnet: ingest → align →
+    infer → shift → fuse → stitch|track → score; most: … → most → track → score; dpls: … → prior →
+    dpls → shift → fuse → stitch|track → score)."""
+    from flows.request import LabelRequest, parse_reader_options
 
     with errors_exit():
-        request = LabelRequest(
+        if workers and dask_address:
+            raise ValueError("give --workers or --dask-address, not both")
+        settings = o.label_settings(
+            scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip,
+            equivariant, semantic_prior, prior_label_map, temporal,
+        )  # fmt: skip
+        request = LabelRequest.from_settings(
+            settings,
             data=data,
             root=run,
             sequences=sequences.split(",") if sequences else None,
             format=format,
             reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
             method=method,
-            method_options={} if temporal == "auto" else {"temporal": temporal},
-            stages=stage_settings(
-                scans,
-                stride,
-                checkpoint,
-                clusterer,
-                estimate_poses,
-                max_points,
-                device,
-                tta,
-                tta_flip,
-                equivariant,
-                method,
-                semantic_prior,
-                prior_label_map,
-            ),
             options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
             from_stage=from_stage,
             until=until,
             force=force,
         )
+        request.check()
     summary = run_label(request, workers, dask_address, debug=debug)
     print_summary(summary)
     typer.echo(f"wrote run store {run}")
@@ -207,18 +155,18 @@ def status(
     from rich.table import Table
 
     from storage.run import RunStore
-    from tasks.methods import run_pipeline
+    from tasks.run_config import RunConfig
     from tasks.runner import stage_state
 
     store = RunStore(root)
     with errors_exit():
-        run = store.read_run_config()
-        pipeline = run_pipeline(run)
-    table = Table(title=f"run store {store.uri} (last run {run.get('run_id')}, method {pipeline.name})")
+        run = RunConfig.of(store.read_run_config())
+        pipeline = run.pipeline()
+    table = Table(title=f"run store {store.uri} (last run {run.run_id}, method {pipeline.name})")
     for col in ("sequence", "stage", "state", "blocks", "items", "fingerprint", "seconds"):
         table.add_column(col)
     damaged = []
-    for seq in sorted(set(store.sequences()) | set(run.get("sequences", []))):
+    for seq in sorted(set(store.sequences()) | set(run.sequences)):
         for stage in pipeline.names():
             with errors_exit():
                 state, m, n_done = stage_state(store, pipeline, seq, stage, run, full=verify)

@@ -20,7 +20,7 @@ def export_review_command(
     out: Path = typer.Option(..., "--out", help="Folder to write (SemanticKITTI layout + review.json)."),
 ) -> None:
     """Write the N least confident frames with their predicted labels (correct them, then
-    ``dsnet train DIR --init-from CKPT --holdout 0.2 --patience 3``)."""
+    ``dsnet train dsnet DIR --init-from CKPT --holdout 0.2 --patience 3``)."""
     from flows.review import export_review
 
     with errors_exit():

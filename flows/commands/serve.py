@@ -7,45 +7,36 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import (
-    FIXED_FRAME_HELP,
-    FORMAT_HELP,
-    READER_OPTION_HELP,
-    TOPIC_HELP,
-    errors_exit,
-    fail,
-)
+from flows.commands import options as o
+from flows.commands.common import errors_exit, fail
+from tasks.methods import DEFAULT_METHOD
 
 
 def serve(
     watch: Path = typer.Option(
         ..., "--watch", help="Log root to watch (any format: each scene, scan folder or bag is a sequence)."
     ),
-    format: str = typer.Option("auto", "--format", help=FORMAT_HELP),
-    reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
-    topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
-    fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
-    max_points: int = typer.Option(
-        None, "--max-points", min=1, help="Refuse frames with more points (default 2,000,000): memory guard."
-    ),
     runs: str = typer.Option(..., "--runs", help="Run store root the labels and scores go to."),
     cron: str = typer.Option("0 * * * *", "--cron", help="When to look for new or stale sequences (cron)."),
     name: str = typer.Option(
         None, help="Dataset name (artifact keys, deployment name); default: the log's folder."
     ),
-    method: str = typer.Option(
-        "dsnet", "--method", help="Labelling method: dsnet, most or dpls (as dsnet label)."
-    ),
-    semantic_prior: str = typer.Option(None, "--semantic-prior", help="dpls: prior files (as dsnet label)."),
-    prior_label_map: str = typer.Option(
-        None, "--prior-label-map", help="dpls: their label map (as dsnet label)."
-    ),
-    scans: int = typer.Option(None, help="k as in dsnet label (default 2 for dsnet, 3 for most)."),
-    checkpoint: str = typer.Option(None, help="Model checkpoint folder (default: the bundled model)."),
-    until: str = typer.Option(None, help="Stop after this stage (default: run every stage)."),
-    estimate_poses: bool = typer.Option(
-        False, "--estimate-poses", help="KISS-ICP poses for sequences without poses.txt (log poses win)."
-    ),
+    format: o.Format = "auto",
+    reader_option: o.ReaderOption = None,
+    topic: o.Topic = None,
+    fixed_frame: o.FixedFrame = None,
+    max_points: o.MaxPoints = None,
+    estimate_poses: o.EstimatePoses = False,
+    method: o.MethodName = DEFAULT_METHOD,
+    scans: o.Scans = None,
+    stride: o.Stride = None,
+    clusterer: o.Clusterer = None,
+    temporal: o.Temporal = "auto",
+    semantic_prior: o.SemanticPrior = None,
+    prior_label_map: o.PriorLabelMap = None,
+    checkpoint: o.Checkpoint = None,
+    device: o.Device = None,
+    until: o.Until = None,
     check_every: float = typer.Option(
         30.0,
         "--check-every",
@@ -58,6 +49,7 @@ def serve(
 
     Needs a Prefect server: `prefect server start --host 127.0.0.1` and PREFECT_API_URL pointing at it.
     """
+    from flows.request import LabelRequest, parse_reader_options
     from flows.server import quiet_prefect_env
 
     quiet_prefect_env()
@@ -66,29 +58,24 @@ def serve(
             "schedules need a Prefect server: run `prefect server start --host 127.0.0.1` and "
             "export PREFECT_API_URL=http://127.0.0.1:4200/api"
         )
-    from flows.request import LabelRequest, parse_reader_options, stage_settings
-    from flows.watch import serve as serve_deployment
-
     with errors_exit():
-        request = LabelRequest(
+        settings = o.label_settings(
+            scans, stride, checkpoint, clusterer, estimate_poses, max_points, device,
+            semantic_prior=semantic_prior, prior_label_map=prior_label_map, temporal=temporal,
+        )  # fmt: skip
+        request = LabelRequest.from_settings(
+            settings,
             data=str(watch.resolve()),
             root=runs,
             format=format,
             reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
             method=method,
-            stages=stage_settings(
-                scans or (3 if method == "most" else 2),
-                checkpoint=checkpoint,
-                estimate_poses=estimate_poses,
-                max_points=max_points,
-                method=method,
-                semantic_prior=semantic_prior,
-                prior_label_map=prior_label_map,
-            ),
             until=until,
         )
-        request.order(request.pipeline())  # unknown stages fail now, not at the first tick
-        request.open_log()  # so do an unknown format or reader option
+        request.check()  # a bad method, stage, format, option or model fails now, not at the first tick
+        check_cron(cron)
+    from flows.watch import serve as serve_deployment
+
     typer.echo(f"serving auto-label of {watch.resolve()} into {runs} on cron '{cron}' (Ctrl-C stops)")
     with errors_exit():
         serve_deployment(
@@ -99,3 +86,15 @@ def serve(
             check_every_s=check_every,
             grace_s=max(150.0, 3 * check_every),
         )
+
+
+def check_cron(cron: str) -> None:
+    """Raise ValueError naming ``--cron`` when it is not a cron expression Prefect takes."""
+    from prefect.client.schemas.schedules import CronSchedule
+    from pydantic import ValidationError
+
+    try:
+        CronSchedule(cron=cron)
+    except ValidationError as exc:
+        reason = exc.errors()[0].get("msg", "invalid").removeprefix("Value error, ")
+        raise ValueError(f"--cron: {reason} (five fields: minute hour day month weekday)") from None

@@ -25,8 +25,8 @@ from flows.report.review import review_queue
 from flows.report.tables import HEADLINE_KEYS, REPORT_TABLES, SCORING_KEYS
 from storage.run import RunStore
 from tasks.base import CLASS_MAP
-from tasks.methods import run_pipeline
 from tasks.pipeline import Pipeline
+from tasks.run_config import RunConfig, read_run
 from tasks.score import FRAME_METRICS, ScoreConfig, block_state_name, make_evaluator
 
 SCORE = "score"
@@ -94,9 +94,9 @@ def _headline(res: EvalResult) -> dict[str, float | None]:
     return out
 
 
-def config_hash(run: dict[str, Any]) -> str:
+def config_hash(run: RunConfig) -> str:
     """sha256[:16] of the run's stage configs (what decides the labels and the scores)."""
-    payload = json.dumps(run.get("stages", {}), sort_keys=True, separators=(",", ":"))
+    payload = json.dumps(run.stages, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
@@ -120,14 +120,12 @@ def write_report(
     Args:
         pipeline: the run's method (default: the one its run config records).
     """
-    from dsnet_core.io.formats import open_log
-
-    run = store.read_run_config()
-    pipeline = pipeline or run_pipeline(run)
+    run = read_run(store)
+    pipeline = pipeline or run.pipeline()
     sequences = sorted(store.sequences())
     if SCORE not in pipeline or not any(_scored(store, s) for s in sequences):
         return None
-    gt_map = open_log(run["data"], run.get("format", "auto"), run.get("reader_options")).label_map
+    gt_map = run.open_log().label_map
     model = model_plan(store, pipeline, sequences)
     model_map = label_map_from_class_map(model[CLASS_MAP]) if CLASS_MAP in model else None
     evals = {s: ev for s in sequences if (ev := sequence_evaluator(store, s, gt_map, model_map)) is not None}
@@ -171,7 +169,7 @@ def write_report(
         for k in spec.include
     ]
     run_row = {
-        "run_id": str(run.get("run_id", "")),
+        "run_id": run.run_id or "",
         "root": store.uri,
         "mode": str(res.mode),
         "model_card": str(model.get("model_card", "")),

@@ -12,6 +12,7 @@ from dsnet_core.labels import LabelMap
 from storage.run import RunStore
 from tasks.base import labels_contract
 from tasks.pipeline import Pipeline
+from tasks.run_config import RunConfig
 
 
 def worst_frames(frames: dict[str, dict[str, list]], n: int) -> list[tuple[str, int, str, float, int]]:
@@ -28,7 +29,7 @@ def worst_frames(frames: dict[str, dict[str, list]], n: int) -> list[tuple[str, 
 def bev_rows(
     store: RunStore,
     pipeline: Pipeline,
-    run: dict,
+    run: RunConfig,
     frames: dict[str, dict[str, list]],
     label_map: LabelMap,
     n: int,
@@ -42,13 +43,12 @@ def bev_rows(
         pred_to_gt: the class mapping of predictions into the ground truth's raw ids, when the
             model's label map is another (:meth:`dsnet_core.label_mapping.ClassMapping.map_labels`).
     """
-    from dsnet_core.io.formats import open_log
     from dsnet_core.viz.bev import label_colours, render_bev
     from dsnet_core.viz.png import encode_png
 
     if n <= 0:
         return []
-    reader = open_log(run["data"], run.get("format", "auto"), run.get("reader_options"))
+    reader = run.open_log()
     labels = labels_contract(pipeline.labels)
     rows = []
     for rank, (seq, index, fid, pq, npts) in enumerate(worst_frames(frames, n)):

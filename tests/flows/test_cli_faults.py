@@ -35,11 +35,11 @@ def big_log(tmp_path_factory):
 def reference(big_log, tmp_path_factory):
     """An uninterrupted run of the same stage functions (plain loop), with the stage configs
     ``dsnet label`` records (ingest's model grid included)."""
-    from flows.request import stage_settings
+    from tasks.methods import stage_configs
     from tests.helpers.label_request import req
 
     store = RunStore(tmp_path_factory.mktemp("ref") / "run")
-    stages = req(big_log, store.uri, stages=stage_settings(3, 1)).stage_configs(P)
+    stages = req(big_log, store.uri, stages=stage_configs(scans=3, stride=1)).stage_configs(P)
     run = {"data": str(big_log), "stages": stages, "options": {"block_size": 1}}
     store.write_run_config("ref", run)
     for stage in ("ingest", "align"):

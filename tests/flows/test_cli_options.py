@@ -21,10 +21,10 @@ def test_label_refuses_non_positive_sizes(tmp_path, option, value):
 
 
 def test_model_options_reach_the_infer_stage_config():
-    from flows.request import stage_settings
+    from tasks.methods import stage_configs
 
-    assert "infer" not in stage_settings(1)  # the plain path records nothing
-    assert stage_settings(1, tta=4, tta_flip=True, device="cuda")["infer"] == {
+    assert "infer" not in stage_configs(scans=1)  # the plain path records nothing
+    assert stage_configs(scans=1, tta=4, tta_flip=True, device="cuda")["infer"] == {
         "device": "cuda",
         "tta": 4,
         "tta_flip": True,

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dsnet_core.checkpoints import bundled_checkpoint
 from dsnet_core.io import kitti
 from dsnet_core.io.semantickitti import SemanticKittiReader
-from dsnet_core.model.bundle import bundled_checkpoint
 from dsnet_core.synth import kitti_tr
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from flows.cli import app
 from storage.run import RunStore
-from tasks.methods import run_pipeline
+from tasks.run_config import RunConfig
 from tests.flows.conftest import cli
 from tests.model_helpers import make_dpls_checkpoint, write_gt_prior
 
@@ -30,7 +30,7 @@ def test_label_method_dpls_with_a_user_prior_then_export_and_eval(synth_log, tmp
     assert config["method"] == "dpls"
     assert config["stages"]["prior"] == {"source": "user", "path": str(prior), "label_map": "semantic-kitti"}
     assert config["stages"]["shift"] == {"clusterer": {"kind": "dbscan"}}
-    pipeline = run_pipeline(config)
+    pipeline = RunConfig.of(config).pipeline()
     assert pipeline.names() == ["ingest", "align", "prior", "dpls", "shift", "fuse", "stitch", "score"]
     assert store.read_manifest("00", "stitch").status == "done"
 

@@ -1,4 +1,4 @@
-"""``dsnet train DIR --init-from CKPT`` with the fine-tuning options, in process."""
+"""``dsnet train dsnet DIR --init-from CKPT`` with the fine-tuning options, in process."""
 
 import torch
 from typer.testing import CliRunner
@@ -13,7 +13,15 @@ def test_fine_tune_options(tmp_path):
     before = torch.get_num_threads()
     log = write_tiny_log(tmp_path / "log", frames=5)
     trainer(log, tmp_path / "parent", stage="semantic", epochs={"semantic": 1}).run()
-    args = ["train", str(log), "--out", str(tmp_path / "ft"), "--init-from", str(tmp_path / "parent")]
+    args = [
+        "train",
+        "dsnet",
+        str(log),
+        "--out",
+        str(tmp_path / "ft"),
+        "--init-from",
+        str(tmp_path / "parent"),
+    ]
     args += ["--epochs", "semantic=1,offset=0,shift=0", "--freeze-backbone", "--holdout", "0.2"]
     args += ["--patience", "1", "--no-augment", "--lr", "0.01"]
     res = CliRunner().invoke(app, args)

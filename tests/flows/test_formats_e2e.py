@@ -200,8 +200,9 @@ def test_a_scheduled_tick_labels_each_bag_of_a_folder_once(prefect_api_url, logs
     request (``--reader-option topic=...``) carried through the deployment's parameters."""
     import shutil
 
-    from flows.request import LabelRequest, parse_reader_options, stage_settings
+    from flows.request import LabelRequest, parse_reader_options
     from flows.watch import auto_label
+    from tasks.methods import stage_configs
 
     watched = tmp_path / "bags"
     for name in ("site-a", "site-b"):
@@ -210,7 +211,7 @@ def test_a_scheduled_tick_labels_each_bag_of_a_folder_once(prefect_api_url, logs
         data=str(watched),
         root=str(tmp_path / "runs"),
         reader_options=parse_reader_options(["topic=/points_copy"]),
-        stages=stage_settings(2, checkpoint=str(ckpt), clusterer=FAST_SHIFT),
+        stages=stage_configs(scans=2, checkpoint=str(ckpt), clusterer=FAST_SHIFT),
     )
     params = request.model_dump(mode="json")  # what the deployment stores
     first = auto_label(params, dataset="bags")
@@ -254,15 +255,16 @@ def test_a_scheduled_tick_labels_each_scene_or_scan_folder_once(prefect_api_url,
     folders (one per folder; a folder added later is labelled by the next tick)."""
     import shutil
 
-    from flows.request import LabelRequest, stage_settings
+    from flows.request import LabelRequest
     from flows.watch import auto_label
+    from tasks.methods import stage_configs
 
     watched = tmp_path / "watched"
     shutil.copytree(logs[log], watched)
     request = LabelRequest(
         data=str(watched),
         root=str(tmp_path / "runs"),
-        stages=stage_settings(1, checkpoint=str(ckpt), clusterer=FAST_SHIFT),
+        stages=stage_configs(scans=1, checkpoint=str(ckpt), clusterer=FAST_SHIFT),
     )
     params = request.model_dump(mode="json")
     seqs = ["scene-0001"] if log == "nuscenes" else ["drive1"]

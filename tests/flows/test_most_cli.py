@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from flows.cli import app
 from storage.run import RunStore
-from tasks.methods import run_pipeline
+from tasks.run_config import RunConfig
 from tests.flows.conftest import cli
 from tests.model_helpers import make_most_checkpoint
 
@@ -26,7 +26,7 @@ def test_label_method_most_then_export_and_eval(synth_log, tmp_path, cli_env):
     store = RunStore(run)
     config = store.read_run_config()
     assert config["method"] == "most" and config["stages"]["most"]["scans"] == 2
-    pipeline = run_pipeline(config)
+    pipeline = RunConfig.of(config).pipeline()
     assert pipeline.names() == ["ingest", "align", "most", "track", "score"]
     assert store.read_manifest("00", "track").status == "done"
 

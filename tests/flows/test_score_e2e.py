@@ -38,9 +38,9 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
         ("01", "fresh"),
     }
     store = RunStore(root)
-    from tasks.methods import run_pipeline
+    from tasks.run_config import read_run
 
-    used = run_pipeline(store.read_run_config())  # k = 1: tracked ids (``track``)
+    used = read_run(store).pipeline()  # k = 1: tracked ids (``track``)
     assert used.labels == "track"
     reader = SemanticKittiReader(synth_log)
     ref = PanopticEvaluator(load_label_map("semantic-kitti"))

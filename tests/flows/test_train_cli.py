@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def cli(*args):
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
-    return [sys.executable, "-m", "flows.cli", "train", *map(str, args)], env
+    return [sys.executable, "-m", "flows.cli", "train", "dsnet", *map(str, args)], env
 
 
 def epochs_done(ckpt: Path) -> int:

@@ -21,7 +21,7 @@ SCHEDULE = {"semantic": 3, "offset": 1, "shift": 1}
 
 def ddp_train(log: Path, out: Path, *extra) -> tuple[list[str], dict[str, str]]:
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
-    cmd += ["-m", "flows.cli", "train", str(log), "--out", str(out), "--stage", "all"]
+    cmd += ["-m", "flows.cli", "train", "dsnet", str(log), "--out", str(out), "--stage", "all"]
     cmd += ["--epochs", ",".join(f"{k}={v}" for k, v in SCHEDULE.items()), "--grid", "24,32,8"]
     cmd += ["--lr", "0.01", *map(str, extra)]  # augmentation on: per-rank draws must resume too
     return cmd, {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}

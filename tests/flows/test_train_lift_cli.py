@@ -1,4 +1,4 @@
-"""``dsnet train --init-from PLAIN --equivariant n``: a plain model lifted to C_n and fine-tuned."""
+"""``dsnet train dsnet --init-from PLAIN --equivariant n``: a plain model lifted to C_n and fine-tuned."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ def test_init_from_a_plain_model_with_equivariant_lifts_it(tmp_path):
     plain = make_checkpoint(tmp_path / "plain")
     args = [
         "train",
+        "dsnet",
         str(log),
         "--out",
         str(tmp_path / "eq4"),

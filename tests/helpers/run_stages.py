@@ -10,6 +10,8 @@ from tasks.runner import run_stage_plain
 def run_all_stages(
     store: RunStore, pipeline: Pipeline, run: dict, run_id: str = "r1", sequence: str = "00"
 ) -> dict:
-    """Record ``run`` as run ``run_id`` and run each stage in order; returns the manifests by stage."""
+    """Record ``run`` (with the pipeline's record: method, options, labels stage) as run ``run_id``
+    and run each stage in order; returns the manifests by stage."""
+    run = {**pipeline.record(), **run}
     store.write_run_config(run_id, run)
     return {s.name: run_stage_plain(store, pipeline, sequence, s.name, run, run_id) for s in pipeline}

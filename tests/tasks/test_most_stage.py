@@ -93,9 +93,10 @@ def test_most_refuses_a_dsnet_checkpoint_and_multi_scan_volumes(most_run, tmp_pa
 
 
 def test_settings_that_are_not_most_s_are_refused():
-    from flows.request import LabelRequest, stage_settings
+    from flows.request import LabelRequest
+    from tasks.methods import stage_configs
 
-    stages = stage_settings(4, method="most", checkpoint="/x", device="cpu")
+    stages = stage_configs("most", scans=4, checkpoint="/x", device="cpu")
     assert stages == {"align": {"scans": 1}, "most": {"scans": 4, "checkpoint": "/x", "device": "cpu"}}
     for kw, flag in [
         ({"tta": 2}, "--tta"),
@@ -103,7 +104,7 @@ def test_settings_that_are_not_most_s_are_refused():
         ({"stride": 2}, "--stride"),
     ]:
         with pytest.raises(ValueError, match=f"{flag}: not a setting of method most"):
-            stage_settings(3, method="most", **kw)
+            stage_configs("most", scans=3, **kw)
     req = LabelRequest(data="d", root="r", method="most", method_options={"temporal": "auto"}, stages=stages)
     assert req.pipeline().labels == "track"
     with pytest.raises(ValueError, match="tracking only"):

@@ -4,15 +4,11 @@ import pytest
 import torch
 from safetensors import safe_open
 
+from dsnet_core.checkpoints import bundled_checkpoint, bundled_dir, resolve_checkpoint
 from dsnet_core.instance.shifting import BANDWIDTHS_3D, BANDWIDTHS_4D
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
-from dsnet_core.model.bundle import (
-    bundled_checkpoint,
-    bundled_dir,
-    load_shift_weights,
-    resolve_checkpoint,
-)
+from dsnet_core.model.bundle import load_shift_weights
 from dsnet_core.model.checkpoint import load_checkpoint, read_card
 from dsnet_core.model.inference import Predictor
 from dsnet_core.synth import generate_log
@@ -128,7 +124,7 @@ def test_lost_shift_weights_recorded_by_the_card_are_refused(tmp_path):
 def test_every_bundled_model_verifies_against_its_card():
     """Each folder under data/models loads through its method's loader, which checks the weights'
     sha256 against the card (a DS-Net, D-PLS or MOST checkpoint alike)."""
-    from dsnet_core.model.bundle import bundled_dir, bundled_most_checkpoint
+    from dsnet_core.checkpoints import bundled_dir, bundled_most_checkpoint
     from dsnet_core.model.checkpoint import load_checkpoint
     from dsnet_core.most.checkpoint import checkpoint_method, load_most_checkpoint
 

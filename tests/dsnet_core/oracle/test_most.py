@@ -42,7 +42,7 @@ def test_oracle_most_with_the_distance_rule(sequence):
 def test_oracle_most_with_the_bundled_pointsegmlp(sequence):
     """The second membership variant: the bundled MOST model's trained PointSegMLP (its features from
     the network on each frame's 3-scan input) cuts the oracle detections' instances out."""
-    from dsnet_core.model.bundle import bundled_most_checkpoint
+    from dsnet_core.checkpoints import bundled_most_checkpoint
     from dsnet_core.most.checkpoint import load_most_checkpoint
 
     scans, labels, poses = sequence

@@ -55,7 +55,7 @@ def test_equivariant_training_stages(tmp_path):
 
 
 def test_a_trained_equivariant_model_is_equivariant_and_the_cli_records_n(tmp_path):
-    """``dsnet train --equivariant 4`` on a tiny log; the trained network's semantics are invariant
+    """``dsnet train dsnet --equivariant 4`` on a tiny log; the trained network's semantics are invariant
     and its offsets rotate with yaw rotations by multiples of 90° (float64 rotations, points kept
     1e-6 rad from cell boundaries)."""
     import numpy as np
@@ -66,7 +66,17 @@ def test_a_trained_equivariant_model_is_equivariant_and_the_cli_records_n(tmp_pa
     from tests.dsnet_core.model.rotation_helpers import away_from_cell_boundaries, rotate64
 
     log = write_tiny_log(tmp_path / "log", frames=2)
-    args = ["train", str(log), "--out", str(tmp_path / "eq"), "--preset", "tiny", "--grid", "24,32,8"]
+    args = [
+        "train",
+        "dsnet",
+        str(log),
+        "--out",
+        str(tmp_path / "eq"),
+        "--preset",
+        "tiny",
+        "--grid",
+        "24,32,8",
+    ]
     args += [
         "--epochs",
         "semantic=1,offset=1,shift=0",
@@ -92,6 +102,6 @@ def test_a_trained_equivariant_model_is_equivariant_and_the_cli_records_n(tmp_pa
             # the point MLP sees float32-rounded rotated coordinates; trained weights amplify that
             # rounding to 1.9e-5 m on ~2 m offsets (random weights stay under 1e-5: test_equivariant.py)
             torch.testing.assert_close(out.offsets, expect, atol=5e-5, rtol=0)
-    bad = [*args[:3], str(tmp_path / "bad"), *args[4:10], "--equivariant", "5"]
+    bad = [*args[:4], str(tmp_path / "bad"), *args[5:11], "--equivariant", "5"]
     res = CliRunner().invoke(app, bad, env={"COLUMNS": "250"})
     assert res.exit_code == 2 and "32" in res.output, res.output  # 5 does not divide 32 azimuth cells

@@ -213,7 +213,13 @@ def test_joint_stage_trains_the_backbone_and_the_instance_only_stage_does_not(lo
 
 
 def test_epochs_text_names_the_joint_stage():
-    from flows.commands.train import parse_epochs
+    from tasks.methods.dsnet_train import PLAIN_STAGES, TRAIN_STAGES, DsnetTrainOptions
 
-    assert parse_epochs("3") == {"semantic": 3, "offset": 3, "joint": 0, "shift": 3}
-    assert parse_epochs("joint=2,shift=1") == {"semantic": 0, "offset": 0, "joint": 2, "shift": 1}
+    def parse(text):
+        return DsnetTrainOptions(out="x", epochs=text).epoch_counts(TRAIN_STAGES, PLAIN_STAGES)
+
+    assert parse("3") == {"semantic": 3, "offset": 3, "joint": 0, "shift": 3}
+    assert parse("joint=2,shift=1") == {"semantic": 0, "offset": 0, "joint": 2, "shift": 1}
+    for bad, said in (("x", "expected N"), ("-1", "expected N"), ("bogus=1", "unknown stage 'bogus'")):
+        with pytest.raises(ValueError, match=said):
+            parse(bad)

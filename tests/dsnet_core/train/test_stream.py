@@ -1,4 +1,4 @@
-"""``dsnet train --stream``: every (stage, epoch) trains on its own window of never-seen generated
+"""``dsnet train dsnet --stream``: every (stage, epoch) trains on its own window of never-seen generated
 sequences, background rendering returns the serial samples, and a resumed run is bit-identical to
 an uninterrupted one."""
 
@@ -88,14 +88,16 @@ def test_cli_stream_needs_validation_data_and_records_the_stream(val, tmp_path):
     from flows.cli import app
 
     runner = CliRunner()
-    res = runner.invoke(app, ["train", "--out", str(tmp_path / "x"), "--stream", "2"])
+    res = runner.invoke(app, ["train", "dsnet", "--out", str(tmp_path / "x"), "--stream", "2"])
     assert res.exit_code == 2 and "--stream needs --val-data" in res.output
     res = runner.invoke(
-        app, ["train", str(val), "--out", str(tmp_path / "x"), "--stream", "2", "--val-data", str(val)]
+        app,
+        ["train", "dsnet", str(val), "--out", str(tmp_path / "x"), "--stream", "2", "--val-data", str(val)],
     )
     assert res.exit_code == 2 and "not both or neither" in res.output
     args = [
         "train",
+        "dsnet",
         "--out",
         str(tmp_path / "s"),
         "--stream",

@@ -1,0 +1,280 @@
+"""What a labelling method is: :class:`Method`, and the settings it is given (:class:`LabelSettings`).
+
+A method is one object in one module of this package: its stages (:meth:`Method.pipeline`), the
+command-line settings it accepts and how they become stage configs (:meth:`Method.stage_settings`),
+its model grid, its bundled checkpoints, and its trainer (:attr:`Method.TrainOptions`,
+:meth:`Method.train`). The flows and the command line ask the registry (:mod:`tasks.methods`) for a
+method by name and never name one themselves; stages check what their source stage declares.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+if TYPE_CHECKING:
+    from tasks.pipeline import Pipeline
+
+Temporal = Literal["auto", "stitch", "track"]
+TEMPORAL_KINDS = ("stitch", "track")
+"""How instance ids become sequence-wide: stitching overlapping volumes, or tracking instances."""
+DEVICE = re.compile(r"^(cpu|cuda(:\d+)?)$")
+
+
+def check_device(value: str | None) -> str | None:
+    """``cpu``, ``cuda`` or ``cuda:N`` (None: the default); anything else is a ValueError."""
+    if value is not None and not DEVICE.match(value):
+        raise ValueError(f"--device {value!r}: expected cpu, cuda or cuda:N")
+    return value
+
+
+class LabelSettings(BaseModel):
+    """The labelling settings of the command line (``dsnet label``, ``serve``, ``demo``), validated
+    once for all of them; each method takes the shared ones and those it lists in
+    :attr:`Method.settings`, and refuses the others by their flag."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scans: int | None = Field(None, ge=1, le=16)
+    stride: int | None = Field(None, ge=1)
+    checkpoint: str | None = None
+    clusterer: str | None = None
+    estimate_poses: bool = False
+    max_points: int | None = Field(None, ge=1)
+    device: str | None = None
+    tta: int = Field(1, ge=1, le=64)
+    tta_flip: bool = False
+    equivariant: int | None = Field(None, ge=1)
+    semantic_prior: str | None = None
+    prior_label_map: str | None = None
+    temporal: Temporal = "auto"
+
+    @field_validator("device")
+    @classmethod
+    def valid_device(cls, value: str | None) -> str | None:
+        return check_device(value)
+
+    def given(self) -> list[str]:
+        """The settings that differ from their defaults."""
+        return [name for name, f in type(self).model_fields.items() if getattr(self, name) != f.default]
+
+
+SHARED_SETTINGS = frozenset({"scans", "checkpoint", "estimate_poses", "max_points", "device"})
+"""Settings every method takes."""
+
+
+def flag(name: str) -> str:
+    """The command-line flag of a setting: ``tta_flip`` → ``--tta-flip``."""
+    return "--" + name.replace("_", "-")
+
+
+class TrainOptions(BaseModel):
+    """Training settings every method's trainer takes (``dsnet train METHOD``); a method extends it.
+
+    Fields become the command's options (their descriptions its help); ``data`` is its argument.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    data: Path | None = Field(None, description="Training log root (any format with labels).")
+    out: Path = Field(..., description="Checkpoint folder (written every epoch).")
+    epochs: str = Field("10", description="Epochs: N for every stage, or per stage 'a=N,b=M'.")
+    device: str = Field("cpu", description="cpu, cuda or cuda:N.")
+    resume: bool = Field(False, description="Continue the checkpoint in --out.")
+    init_from: Path | None = Field(None, description="Start from this checkpoint's weights.")
+    sequences: str | None = Field(None, description="Comma-separated training sequences (default: all).")
+    val_data: Path | None = Field(None, description="Validation log root (default: DATA).")
+    val_sequences: str | None = Field(None, description="Validation sequences (default: the training ones).")
+    lr: float = Field(1e-3, gt=0, description="Adam learning rate (the start of each stage's schedule).")
+    seed: int = Field(0, ge=0, description="Seed of initialisation, shuffling and augmentation.")
+    augment: bool = Field(True, description="Yaw/flip/scale/translation augmentation.")
+    threads: int = Field(1, ge=1, description="Torch CPU threads.")
+
+    @field_validator("device")
+    @classmethod
+    def valid_device(cls, value: str) -> str:
+        return check_device(value) or "cpu"
+
+    def epoch_counts(
+        self, stages: tuple[str, ...], default_all: tuple[str, ...] | None = None
+    ) -> dict[str, int]:
+        """``--epochs``: ``"10"`` → 10 for each of ``default_all`` (default: every stage), 0 for the
+        rest; ``"a=3,b=1"`` → per stage, unnamed stages 0.
+
+        Raises:
+            ValueError: an unknown stage, a count that is not a whole number ≥ 0.
+        """
+        out = dict.fromkeys(stages, 0)
+        try:
+            if "=" not in self.epochs:
+                n = int(self.epochs)
+                if n < 0:
+                    raise ValueError
+                return {s: (n if s in (default_all or stages) else 0) for s in stages}
+            for part in self.epochs.split(","):
+                name, _, value = part.partition("=")
+                if name.strip() not in out:
+                    raise ValueError(
+                        f"--epochs: unknown stage {name.strip()!r} (stages: {', '.join(stages)})"
+                    )
+                out[name.strip()] = int(value)
+                if out[name.strip()] < 0:
+                    raise ValueError
+        except ValueError as exc:
+            if str(exc).startswith("--epochs"):
+                raise
+            raise ValueError(f"--epochs {self.epochs!r}: expected N or stage=N,... with N ≥ 0") from None
+        return out
+
+    def names(self, text: str | None) -> list[str] | None:
+        """A comma-separated option as a list (None when not given)."""
+        return [v.strip() for v in text.split(",") if v.strip()] if text else None
+
+
+StepCallback = Callable[[str, int, int, int, float], None]
+"""``(stage, epoch, step, steps, loss)`` after every training step (progress bars)."""
+
+
+class Method(ABC):
+    """A labelling method. Subclasses set the class attributes and implement the abstract methods.
+
+    Attributes:
+        name: the name runs record and ``--method`` takes.
+        title: one line for help texts.
+        default_scans: k when ``--scans`` is not given.
+        settings: the :class:`LabelSettings` it takes besides :data:`SHARED_SETTINGS`.
+        TrainOptions: its trainer's options (a :class:`TrainOptions` subclass).
+        data_parallel: whether its trainer runs under torchrun with several processes.
+    """
+
+    name: ClassVar[str]
+    title: ClassVar[str]
+    default_scans: ClassVar[int]
+    settings: ClassVar[frozenset[str]] = frozenset()
+    TrainOptions: ClassVar[type[TrainOptions]] = TrainOptions
+    data_parallel: ClassVar[bool] = False
+
+    # -- labelling -----------------------------------------------------------------------------
+    @abstractmethod
+    def pipeline(
+        self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
+    ) -> Pipeline:
+        """The method's stages, built with its recorded ``options`` (``method_options``); ``stages``
+        (the run's stage configs) settle what depends on them (e.g. the temporal association at
+        k = 1).
+
+        Raises:
+            ValueError: an option the method does not take, or a bad value.
+        """
+
+    def options(self, settings: LabelSettings) -> dict[str, Any]:
+        """The ``method_options`` a run records for ``settings``."""
+        return {} if settings.temporal == "auto" else {"temporal": settings.temporal}
+
+    @abstractmethod
+    def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
+        """Per-stage config overrides for ``settings`` (after :meth:`refuse`)."""
+
+    def stage_settings(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
+        """Refuse the settings this method lacks, then :meth:`stage_configs`.
+
+        Raises:
+            ValueError: naming every refused flag.
+        """
+        self.refuse(settings)
+        return self.stage_configs(settings)
+
+    def refuse(self, settings: LabelSettings) -> None:
+        """Raise ValueError naming every given setting the method does not take."""
+        bad = [n for n in settings.given() if n not in SHARED_SETTINGS | self.settings]
+        if bad:
+            raise ValueError(
+                f"{', '.join(flag(n) for n in bad)}: not a setting of method {self.name} "
+                f"({self.title}); see dsnet label --help"
+            )
+
+    def scans(self, settings: LabelSettings) -> int:
+        return settings.scans if settings.scans is not None else self.default_scans
+
+    @abstractmethod
+    def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
+        """The grid bounds of the model the stage configs name (the bundled one when they name
+        none), which ingest records; None when there is no model to ask."""
+
+    @abstractmethod
+    def bundled_checkpoint(self, scans: int) -> Path | None:
+        """The bundled checkpoint for k = ``scans``, or None when the package has none."""
+
+    # -- training ------------------------------------------------------------------------------
+    @abstractmethod
+    def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
+        """Train (or resume) a checkpoint with ``options``; returns a one-line summary of the result.
+
+        Raises:
+            DsnetError: bad data or settings.
+        """
+
+
+def resolve_temporal(
+    options: Mapping[str, Any] | None, stages: Mapping[str, Mapping[str, Any]] | None
+) -> str:
+    """``options["temporal"]``; ``auto`` (or none): tracking at k = 1 (volumes share no frame, so
+    stitching could only hand out fresh ids), stitching for k > 1 — k from the stage configs'
+    ``align.scans``; stitching when no stage configs are given.
+
+    Raises:
+        ValueError: an unknown association.
+    """
+    temporal = (options or {}).get("temporal", "auto")
+    if temporal == "auto":
+        if stages is None:
+            return "stitch"
+        return "track" if int(stages.get("align", {}).get("scans", 1)) == 1 else "stitch"
+    if temporal not in TEMPORAL_KINDS:
+        raise ValueError(f"unknown temporal association {temporal!r}; choose one of {list(TEMPORAL_KINDS)}")
+    return temporal
+
+
+def check_options(name: str, options: Mapping[str, Any] | None, known: tuple[str, ...]) -> None:
+    """Raise ValueError for a method option the method does not take."""
+    unknown = sorted(set(options or {}) - set(known))
+    if unknown:
+        raise ValueError(
+            f"method {name} takes no option {', '.join(unknown)} (its options: {', '.join(known)})"
+        )
+
+
+def clusterer_config(clusterer: str) -> dict[str, Any]:
+    """``--clusterer``: a kind (``dbscan``) or a JSON config. Raises ValueError for bad JSON."""
+    try:
+        return json.loads(clusterer) if clusterer.lstrip().startswith("{") else {"kind": clusterer}
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--clusterer is not valid JSON: {exc}") from None
+
+
+def ingest_settings(settings: LabelSettings) -> dict[str, dict[str, Any]]:
+    """Ingest's settings of the command line (every method shares ingest)."""
+    ingest: dict[str, Any] = {"estimate_poses": True} if settings.estimate_poses else {}
+    if settings.max_points is not None:
+        ingest["max_points"] = settings.max_points
+    return {"ingest": ingest} if ingest else {}
+
+
+def align_settings(scans: int, stride: int | None) -> dict[str, dict[str, Any]]:
+    return {"align": {"scans": scans, **({"stride": stride} if stride else {})}}
+
+
+def absolute(path: str | Path | None) -> str | None:
+    """A user path made absolute (``~`` expanded), as the run records it; None stays None."""
+    return None if path is None else str(Path(path).expanduser().resolve())
+
+
+def grid_of(bounds) -> dict[str, list[float]]:
+    """A :class:`~dsnet_core.model.presets.GridConfig`'s bounds as ingest records them."""
+    return {"min_bound": list(bounds.min_bound), "max_bound": list(bounds.max_bound)}

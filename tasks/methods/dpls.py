@@ -1,0 +1,123 @@
+"""D-PLS: single-scan semantic priors (the user's files, or the bundled DS-Net's semantics)
+aggregated into the volumes, the prior-conditioned instance network, clustering (DBSCAN by
+default), majority vote over the prior's classes, then stitching or tracking as for DS-Net.
+Trained on corrupted ground-truth priors (:class:`dsnet_core.train.dpls.DplsTrainer`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pydantic import Field
+
+from tasks.methods.base import (
+    LabelSettings,
+    Method,
+    StepCallback,
+    TrainOptions,
+    absolute,
+    align_settings,
+    check_options,
+    clusterer_config,
+    grid_of,
+    ingest_settings,
+    resolve_temporal,
+)
+
+if TYPE_CHECKING:
+    from tasks.pipeline import Pipeline
+
+
+class DplsTrainOptions(TrainOptions):
+    """The prior-conditioned instance network on corrupted ground-truth priors, from a trained
+    DS-Net (--init-from, default the bundled single-scan model)."""
+
+    epochs: str = Field("6", description="Passes over the training volumes.")
+    scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume (the prior is aggregated too).")
+
+
+class Dpls(Method):
+    name = "dpls"
+    title = "D-PLS (prior-conditioned instances)"
+    default_scans = 2
+    settings = frozenset({"stride", "clusterer", "semantic_prior", "prior_label_map", "temporal"})
+    TrainOptions = DplsTrainOptions
+
+    def pipeline(
+        self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
+    ) -> Pipeline:
+        from tasks.dpls import DplsStage
+        from tasks.methods.bottom_up import bottom_up
+        from tasks.prior import PriorStage
+
+        check_options(self.name, options, ("temporal",))
+        model = DplsStage()
+        return bottom_up(self.name, (PriorStage(), model), model.name, resolve_temporal(options, stages))
+
+    def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
+        if settings.prior_label_map and not settings.semantic_prior:
+            raise ValueError(
+                "--prior-label-map: names the label map of --semantic-prior files; give --semantic-prior DIR"
+            )
+        stages = align_settings(self.scans(settings), settings.stride) | ingest_settings(settings)
+        prior: dict[str, Any] = {}
+        if settings.semantic_prior:
+            prior = {"source": "user", "path": absolute(settings.semantic_prior)}
+            if settings.prior_label_map:
+                named = settings.prior_label_map
+                prior["label_map"] = absolute(named) if Path(named).expanduser().is_file() else named
+        dpls: dict[str, Any] = {}
+        if settings.checkpoint:
+            dpls["checkpoint"] = absolute(settings.checkpoint)
+        if settings.device:
+            prior["device"] = dpls["device"] = settings.device
+        if prior:
+            stages["prior"] = prior
+        if dpls:
+            stages["dpls"] = dpls
+        kind = clusterer_config(settings.clusterer) if settings.clusterer else {"kind": "dbscan"}
+        stages["shift"] = {"clusterer": kind}
+        return stages
+
+    def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
+        from dsnet_core.model.checkpoint import read_card
+
+        path = stages.get("dpls", {}).get("checkpoint") or self.bundled_checkpoint(1)
+        return None if path is None else grid_of(read_card(path).config.grid)
+
+    def bundled_checkpoint(self, scans: int) -> Path | None:
+        from dsnet_core.checkpoints import bundled_dpls_checkpoint
+
+        return bundled_dpls_checkpoint()
+
+    def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
+        import torch
+
+        from dsnet_core.checkpoints import bundled_checkpoint
+        from dsnet_core.train.dpls import DplsTrainConfig, DplsTrainer
+        from tasks.methods.training import open_training_data
+
+        assert isinstance(options, DplsTrainOptions)
+        epochs = options.epoch_counts(("dpls",))["dpls"]
+        torch.set_num_threads(options.threads)
+        data = open_training_data(options)
+        cfg = DplsTrainConfig(
+            epochs=epochs, lr=options.lr, scans=options.scans, seed=options.seed, augment=options.augment,
+            device=options.device,
+        )  # fmt: skip
+        start = options.init_from or bundled_checkpoint(1)
+        trainer = DplsTrainer(
+            options.out, data.reader, data.sequences, data.val_reader, data.val_sequences, data.label_map,
+            cfg, start, options.resume,
+        )  # fmt: skip
+        card = trainer.run(on_step=on_step)
+        last = card.metrics[-1] if card.metrics else {}
+        return (
+            f"wrote checkpoint {options.out.resolve()} (epochs {card.epochs}, val offset L1 clean "
+            f"{last.get('val_offset_l1_clean', float('nan')):.3f} m, corrupted prior "
+            f"{last.get('val_offset_l1_corrupted', float('nan')):.3f} m)"
+        )
+
+
+DPLS = Dpls()

@@ -1,0 +1,81 @@
+"""DS-Net (k = 1) and 4D-DS-Net (k > 1): offsets → dynamic shifting → fusion → stitching across
+volumes or tracking each frame's instances; C_n-equivariant networks (Eq-4D) through the same
+stages. Trained semantic → instance head → shifting MLPs (:class:`dsnet_core.train.loop.Trainer`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from tasks.methods.base import (
+    LabelSettings,
+    Method,
+    StepCallback,
+    TrainOptions,
+    absolute,
+    align_settings,
+    check_options,
+    clusterer_config,
+    grid_of,
+    ingest_settings,
+    resolve_temporal,
+)
+from tasks.methods.dsnet_train import DsnetTrainOptions, train_dsnet
+
+if TYPE_CHECKING:
+    from tasks.pipeline import Pipeline
+
+
+class Dsnet(Method):
+    name = "dsnet"
+    title = "DS-Net (k = 1) / 4D-DS-Net (k ≥ 2)"
+    default_scans = 2
+    settings = frozenset({"stride", "clusterer", "tta", "tta_flip", "equivariant", "temporal"})
+    TrainOptions = DsnetTrainOptions
+    data_parallel = True
+
+    def pipeline(
+        self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
+    ) -> Pipeline:
+        from tasks.infer import InferStage
+        from tasks.methods.bottom_up import bottom_up
+
+        check_options(self.name, options, ("temporal",))
+        return bottom_up(self.name, (InferStage(),), "infer", resolve_temporal(options, stages))
+
+    def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
+        stages = align_settings(self.scans(settings), settings.stride) | ingest_settings(settings)
+        infer: dict[str, Any] = {}
+        if settings.checkpoint:
+            infer["checkpoint"] = absolute(settings.checkpoint)
+        if settings.device:
+            infer["device"] = settings.device
+        if settings.tta != 1 or settings.tta_flip:
+            infer.update(tta=settings.tta, tta_flip=settings.tta_flip)
+        if settings.equivariant is not None:
+            infer["equivariant"] = settings.equivariant
+        if infer:
+            stages["infer"] = infer
+        if settings.clusterer:
+            stages["shift"] = {"clusterer": clusterer_config(settings.clusterer)}
+        return stages
+
+    def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
+        from dsnet_core.model.checkpoint import read_card
+
+        infer, align = stages.get("infer", {}), stages.get("align", {})
+        path = infer.get("checkpoint") or self.bundled_checkpoint(int(align.get("scans", 1)))
+        return None if path is None else grid_of(read_card(path).config.grid)
+
+    def bundled_checkpoint(self, scans: int) -> Path | None:
+        from dsnet_core.checkpoints import bundled_checkpoint
+
+        return bundled_checkpoint(scans)
+
+    def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
+        assert isinstance(options, DsnetTrainOptions)
+        return train_dsnet(options, on_step)
+
+
+DSNET = Dsnet()

@@ -1,0 +1,145 @@
+"""``dsnet train dsnet``: options → :class:`~dsnet_core.train.loop.Trainer` → the trained card.
+
+Under torchrun (``WORLD_SIZE`` > 1) the trainer joins the process group and trains data-parallel;
+rank 0 alone reports progress and the result.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+from typing import Literal
+
+from pydantic import Field
+
+from tasks.methods.base import StepCallback, TrainOptions
+from tasks.methods.training import open_training_data
+
+log = logging.getLogger(__name__)
+TRAIN_STAGES = ("semantic", "offset", "joint", "shift")
+PLAIN_STAGES = ("semantic", "offset", "shift")
+"""What ``--epochs N`` trains: every stage but ``joint`` (4D-DS-Net's fine-tune, named to run)."""
+
+
+class DsnetTrainOptions(TrainOptions):
+    """Semantic stage, instance head, shifting MLPs (and 4D-DS-Net's joint fine-tune on k-scan
+    volumes); data-parallel under torchrun."""
+
+    epochs: str = Field(
+        "10",
+        description="Epochs per stage: N (semantic, offset, shift), or e.g. 'semantic=20,offset=5'; "
+        "'joint=N' trains backbone and both heads together (4D-DS-Net's fine-tune, after --init-from).",
+    )
+    stage: Literal["semantic", "offset", "joint", "shift", "all"] = Field(
+        "all", description="semantic | offset | joint | shift | all."
+    )
+    scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume (1 = single scans).")
+    preset: str = Field("tiny", description="Model preset: tiny | small | paper | reference | cylinder3d.")
+    grid: str | None = Field(None, description="Cylinder cells 'ρ,φ,z' (default: the preset's).")
+    schedule: Literal["cosine", "constant"] = Field("cosine", description="Learning rate per stage.")
+    batch_size: int = Field(1, ge=1, description="Volumes per step (per process under torchrun).")
+    freeze_backbone: bool = Field(False, description="The semantic stage trains only the semantic head.")
+    holdout: float = Field(0.0, ge=0.0, lt=1.0, description="Fraction of frames held back to validate.")
+    patience: int = Field(0, ge=0, description="Early stop after N epochs without a better score.")
+    amp: Literal["off", "bf16", "fp16"] = Field("off", description="Mixed precision: off, bf16 or fp16.")
+    equivariant: int = Field(1, ge=1, description="Eq-4D: a C_n yaw-equivariant network (n divides φ cells).")
+    pooling: Literal["mean", "max"] = Field("mean", description="Equivariant: invariant pooling.")
+    stream: int = Field(0, ge=0, description="Train on N never-seen generated sequences per epoch.")
+    stream_styles: str | None = Field(None, description="--stream: street styles (default: all).")
+    stream_sensors: str | None = Field(None, description="--stream: sensors (default: all).")
+    stream_workers: int = Field(1, ge=0, description="--stream: background render processes.")
+
+
+def model_config(options: DsnetTrainOptions):
+    """The architecture of a new checkpoint: the preset, ``--grid`` cells, equivariance.
+
+    Raises:
+        ValueError: an unknown preset, or a grid that is not three cell counts ≥ 1.
+    """
+    from dsnet_core.model.presets import get_preset
+
+    config = get_preset(options.preset)
+    if options.grid:
+        config = replace(config, grid=replace(config.grid, size=parse_grid(options.grid)))
+    if options.equivariant != 1 or options.pooling != "mean":
+        config = replace(config, equivariant=options.equivariant, pooling=options.pooling)
+    return config
+
+
+def parse_grid(text: str) -> tuple[int, int, int]:
+    """``'480,360,32'`` → cells (ρ, φ, z). Raises ValueError unless three whole numbers ≥ 1."""
+    parts = [v.strip() for v in text.split(",")]
+    if len(parts) != 3 or not all(p.isdigit() and int(p) >= 1 for p in parts):
+        raise ValueError(f"--grid wants three cell counts ≥ 1 'ρ,φ,z', got {text!r}")
+    return tuple(int(p) for p in parts)  # type: ignore[return-value]
+
+
+def stream_reader(options: DsnetTrainOptions):
+    """The :class:`~dsnet_core.train.stream.StreamLog` of ``--stream`` (samples of k = ``scans``)."""
+    from dsnet_core.synth.stream import StreamOptions
+    from dsnet_core.train.stream import StreamLog
+
+    styles, sensors = options.names(options.stream_styles), options.names(options.stream_sensors)
+    stream = StreamOptions(
+        frames=options.scans,
+        styles=tuple(styles) if styles else None,
+        sensors=tuple(sensors) if sensors else None,
+    )
+    return StreamLog(options.seed, stream, options.stream, options.stream_workers)
+
+
+def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None) -> str:
+    """Train (or resume) a DS-Net checkpoint; returns the summary line.
+
+    Raises:
+        ConfigError: bad data or settings (e.g. neither or both of DATA and ``--stream``).
+    """
+    import torch
+
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.train import distributed
+    from dsnet_core.train.loop import TrainConfig, Trainer
+
+    if (options.data is None) == (options.stream == 0):
+        raise ConfigError("give a training log (DATA) or --stream N, not both or neither")
+    if options.stream and (options.val_data is None or options.holdout):
+        raise ConfigError("--stream needs --val-data VAL (the stream has no fixed frames to hold out)")
+    epochs = options.epoch_counts(TRAIN_STAGES, PLAIN_STAGES)
+    config = model_config(options)
+    torch.set_num_threads(options.threads)
+    stream = stream_reader(options) if options.stream else None
+    try:
+        if stream is not None:
+            stream.probe()  # the class statistics the loss weights come from
+        data = open_training_data(options, stream)
+        if data.validates_on_training and not options.holdout:
+            log.warning("no validation set given: validating on the training sequences")
+        cfg = TrainConfig(
+            stage=options.stage,
+            epochs=epochs,
+            lr=options.lr,
+            schedule=options.schedule,
+            scans=options.scans,
+            batch_size=options.batch_size,
+            seed=options.seed,
+            augment=options.augment,
+            device=options.device,
+            freeze_backbone=options.freeze_backbone,
+            holdout=options.holdout,
+            patience=options.patience,
+            amp=options.amp,
+        )
+        lift = (
+            (options.equivariant, options.pooling) if options.init_from and options.equivariant != 1 else None
+        )
+        trainer = Trainer(
+            options.out, config, data.reader, data.sequences, data.val_reader, data.val_sequences,
+            data.label_map, cfg, options.resume, options.init_from, lift,
+        )  # fmt: skip
+        card = trainer.run(on_step=on_step if trainer.dist.is_main else None)
+    finally:
+        if stream is not None:
+            stream.close()
+        distributed.teardown()
+    miou = card.metrics[-1]["val_miou"] if card.metrics else float("nan")
+    return f"wrote checkpoint {options.out.resolve()} (epochs {card.epochs}, val mIoU {miou:.4f})"

@@ -1,0 +1,148 @@
+"""MOST: modal object centres on a bird's-eye view of the cylinder backbone, PointSegMLP
+membership, learned velocities; always tracked (its frames share no volume to stitch). Trained
+``detect`` → ``member`` (:class:`dsnet_core.train.most.MostTrainer`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from pydantic import Field
+
+from tasks.methods.base import (
+    LabelSettings,
+    Method,
+    StepCallback,
+    TrainOptions,
+    absolute,
+    check_options,
+    grid_of,
+    ingest_settings,
+)
+
+if TYPE_CHECKING:
+    from tasks.pipeline import Pipeline
+
+TRAIN_STAGES = ("detect", "member")
+
+
+class MostTrainOptions(TrainOptions):
+    """Detection, segmentation and velocity (stage detect), then PointSegMLP (stage member);
+    --init-from a DS-Net checkpoint starts the shared backbone."""
+
+    epochs: str = Field("10", description="Epochs per stage: N for both, or 'detect=6,member=2'.")
+    stage: Literal["detect", "member", "all"] = Field("all", description="detect | member | all.")
+    scans: int = Field(3, ge=1, le=16, description="k: the current scan plus k-1 past ones.")
+    preset: str = Field("tiny", description="Backbone preset: tiny | small | paper.")
+    grid: str | None = Field(None, description="Cylinder cells 'ρ,φ,z' (default: the preset's).")
+
+
+class Most(Method):
+    name = "most"
+    title = "MOST (modal centres + PointSegMLP, tracked)"
+    default_scans = 3
+    settings = frozenset({"stride", "temporal"})
+    TrainOptions = MostTrainOptions
+
+    def pipeline(
+        self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
+    ) -> Pipeline:
+        from tasks.align import AlignStage
+        from tasks.ingest import IngestStage
+        from tasks.most import MostStage
+        from tasks.pipeline import Pipeline
+        from tasks.score import ScoreStage
+        from tasks.track import TrackStage
+
+        check_options(self.name, options, ("temporal",))
+        temporal = (options or {}).get("temporal", "track")
+        if temporal not in ("track", "auto"):
+            raise ValueError(
+                f"method most associates over time by tracking only (--temporal track), not {temporal!r}"
+            )
+        model = MostStage()
+        stages_ = (
+            IngestStage(),
+            AlignStage(),
+            model,
+            TrackStage(source=model.name),
+            ScoreStage(labels="track"),
+        )
+        return Pipeline(self.name, stages_, labels="track")
+
+    def options(self, settings: LabelSettings) -> dict[str, Any]:
+        return {}  # tracking is MOST's only association: nothing to record
+
+    def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
+        if settings.stride not in (None, 1):
+            raise ValueError(
+                "--stride: not a setting of method most (it reads every scan with its k-1 predecessors)"
+            )
+        if settings.temporal not in ("auto", "track"):
+            raise ValueError(f"--temporal {settings.temporal}: method most tracks (--temporal track)")
+        stages: dict[str, dict[str, Any]] = {"align": {"scans": 1}} | ingest_settings(settings)
+        most: dict[str, Any] = {"scans": self.scans(settings)}
+        if settings.checkpoint:
+            most["checkpoint"] = absolute(settings.checkpoint)
+        if settings.device:
+            most["device"] = settings.device
+        stages["most"] = most
+        return stages
+
+    def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
+        from dsnet_core.most.checkpoint import read_most_card
+        from dsnet_core.most.config import MostConfig
+
+        most = stages.get("most", {})
+        path = most.get("checkpoint") or self.bundled_checkpoint(int(most.get("scans", self.default_scans)))
+        if path is None:
+            return None
+        return grid_of(MostConfig.from_dict(read_most_card(path).architecture).backbone.grid)
+
+    def bundled_checkpoint(self, scans: int) -> Path | None:
+        from dsnet_core.checkpoints import bundled_most_checkpoint
+
+        return bundled_most_checkpoint(scans)
+
+    def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
+        from dataclasses import replace
+
+        import torch
+
+        from dsnet_core.model.presets import get_preset
+        from dsnet_core.most.config import MostConfig
+        from dsnet_core.train.most import MostTrainConfig, MostTrainer
+        from tasks.methods.dsnet_train import parse_grid
+        from tasks.methods.training import open_training_data
+
+        assert isinstance(options, MostTrainOptions)
+        epochs = options.epoch_counts(TRAIN_STAGES)
+        backbone = get_preset(options.preset)
+        if options.grid:
+            backbone = replace(backbone, grid=replace(backbone.grid, size=parse_grid(options.grid)))
+        torch.set_num_threads(options.threads)
+        data = open_training_data(options)
+        cfg = MostTrainConfig(
+            stage=options.stage,
+            epochs=epochs,
+            lr=options.lr,
+            scans=options.scans,
+            seed=options.seed,
+            augment=options.augment,
+            device=options.device,
+        )
+        trainer = MostTrainer(
+            options.out, MostConfig(backbone=backbone), data.reader, data.sequences, data.val_reader,
+            data.val_sequences, data.label_map, cfg, options.resume, backbone_from=options.init_from,
+        )  # fmt: skip
+        card = trainer.run(on_step=on_step)
+        last = card.metrics[-1] if card.metrics else {}
+        miou, recall = last.get("val_miou", float("nan")), last.get("val_det_recall", float("nan"))
+        return (
+            f"wrote MOST checkpoint {options.out.resolve()} (epochs {card.epochs}, val mIoU {miou:.4f}, "
+            f"detection recall {recall:.3f})"
+        )
+
+
+MOST = Most()

@@ -33,10 +33,11 @@ import numpy as np
 
 from dsnet_core.errors import BagFormatError, MissingExtraError, PoseFormatError
 from dsnet_core.io.intensity import CONVENTIONS, infer_convention, normalise_intensity
+from dsnet_core.io.options import as_label_map
 from dsnet_core.io.pointcloud2 import Cloud, decode_cloud
 from dsnet_core.io.reader import FrameRef
 from dsnet_core.io.tf import TfTree
-from dsnet_core.labels import LabelMap, load_label_map
+from dsnet_core.labels import LabelMap
 
 CLOUD_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2")
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage")
@@ -84,7 +85,7 @@ class RosbagReader:
         intensity: str = "auto",
         intensity_field: str | None = None,
         tf_tolerance_s: float = 0.05,
-        label_map: LabelMap | None = None,
+        label_map: LabelMap | str | None = None,
     ) -> None:
         try:
             import rosbags  # noqa: F401
@@ -95,7 +96,7 @@ class RosbagReader:
             raise BagFormatError(self.root, f"intensity must be 'auto' or one of {CONVENTIONS}")
         self.topic, self.fixed_frame, self._intensity = topic, fixed_frame, intensity
         self.intensity_field, self.tf_tolerance_s = intensity_field, tf_tolerance_s
-        self.label_map = label_map or load_label_map("semantic-kitti")
+        self.label_map = as_label_map(label_map, "semantic-kitti")
         if is_bag(self.root):
             self._bags = {self.root.stem if self.root.is_file() else self.root.name: self.root}
         else:

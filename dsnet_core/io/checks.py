@@ -60,7 +60,7 @@ def check_points(path: str | Path, scan: np.ndarray, max_coord: float = MAX_COOR
     if _all_the_same(scan[:, :3]):
         raise ScanFormatError(
             path,
-            f"all {scan.shape[0]} points are the same point {np.array2string(scan[0, :3], precision=3)}: "
+            f"all {scan.shape[0]} points are the same point ({_xyz(scan[0, :3])}) m: "
             "a degenerate scan (zeroed coordinates or a broken scale)",
         )
 
@@ -70,3 +70,7 @@ def _all_the_same(xyz: np.ndarray) -> bool:
     if xyz.shape[0] < 2 or (xyz[1] != xyz[0]).any():
         return False
     return bool((xyz == xyz[0]).all())
+
+
+def _xyz(point: np.ndarray) -> str:
+    return ", ".join(f"{v:g}" for v in point.tolist())

@@ -161,8 +161,10 @@ def label_map(only: str | None = None) -> Callable[[Any], LabelMap]:
     def parse(value: Any) -> LabelMap:
         if isinstance(value, LabelMap):
             lm = value
-        elif isinstance(value, str | Path) and str(value).strip():
-            name = str(value).strip()
+        elif isinstance(value, Path) or (
+            not isinstance(value, bool) and isinstance(value, str | int | float)
+        ):
+            name = str(value).strip()  # a number the command line read as YAML is a file name
             if name not in builtin_label_maps() and not Path(name).expanduser().is_file():
                 raise ValueError(f"no bundled label map or YAML file {name!r}")
             try:

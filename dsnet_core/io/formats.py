@@ -105,11 +105,24 @@ def open_log(root: str | Path, format: str = "auto", options: dict[str, Any] | N
             or a value the option does not allow (the message says what it allows).
         DataFormatError: the reader's own checks of the root.
     """
+    name, parsed = check_reader_options(root, format, options)
+    return FORMATS[name].open(Path(root).expanduser(), **parsed)
+
+
+def check_reader_options(
+    root: str | Path, format: str = "auto", options: dict[str, Any] | None = None
+) -> tuple[str, dict[str, Any]]:
+    """The log's format name and its parsed reader options, checked without opening the log (cheap:
+    a command can refuse a bad option before it starts anything).
+
+    Raises:
+        UnknownLogFormatError: unknown name, or nothing detected.
+        ConfigError: an option the format's reader does not take, or a value it does not allow.
+    """
     name = detect_format(root) if format == "auto" else format
     if name not in FORMATS:
         raise UnknownLogFormatError(root, f"unknown format {name!r}; formats: {', '.join(FORMATS)}")
-    fmt = FORMATS[name]
-    return fmt.open(Path(root).expanduser(), **check_options(root, name, fmt.options, options))
+    return name, check_options(root, name, FORMATS[name].options, options)
 
 
 def _listing(path: Path, limit: int = 8) -> str:

@@ -179,3 +179,16 @@ def test_every_declared_option_is_a_keyword_of_its_reader():
         params = set(inspect.signature(readers[name]).parameters) - {"root"}
         assert set(fmt.option_names) == params, name
     assert SCAN_SUFFIXES == pointfiles.SUFFIXES
+
+
+def test_options_are_checked_without_opening_the_log(tmp_path):
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.io.formats import check_reader_options
+
+    (tmp_path / "v1.0-mini").mkdir()
+    (tmp_path / "v1.0-mini" / "sample_data.json").write_text("not read")  # detected, never parsed
+    assert check_reader_options(tmp_path, options={"sweeps": "yes"}) == ("nuscenes", {"sweeps": True})
+    with pytest.raises(
+        ConfigError, match="sweeps='maybe' is not allowed; the nuscenes reader takes true or false"
+    ):
+        check_reader_options(tmp_path, "auto", {"sweeps": "maybe"})

@@ -281,6 +281,11 @@ def _track_groups(raw: object, things: tuple[int, ...], source: str) -> tuple[tu
     return groups
 
 
+def builtin_label_maps() -> list[str]:
+    """Names of the bundled label maps, sorted."""
+    return sorted(_BUILTIN)
+
+
 def load_label_map(name_or_path: str | Path = "semantic-kitti") -> LabelMap:
     """Load a bundled label map by name (``semantic-kitti``, ``panoptic-nuscenes``) or a YAML file."""
     key = str(name_or_path)

@@ -33,7 +33,8 @@ def drop_no_returns(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def check_points(path: str | Path, scan: np.ndarray, max_coord: float = MAX_COORD_M) -> None:
-    """Reject a scan holding NaN/inf values or coordinates beyond ``max_coord``.
+    """Reject a scan holding NaN/inf values, coordinates beyond ``max_coord``, or two or more points
+    that are all the same point (no LiDAR returns that: zeroed coordinates, a LAS scale of 0).
 
     Args:
         path: the file the scan came from (named in the error).
@@ -41,7 +42,8 @@ def check_points(path: str | Path, scan: np.ndarray, max_coord: float = MAX_COOR
         max_coord: largest accepted absolute coordinate, metres.
 
     Raises:
-        ScanFormatError: naming ``path``, the number of bad points and the first one's index.
+        ScanFormatError: naming ``path``, the number of bad points and the first one's index (or
+            the point every point is).
     """
     finite = np.isfinite(scan).all(axis=1)
     if not finite.all():
@@ -55,3 +57,20 @@ def check_points(path: str | Path, scan: np.ndarray, max_coord: float = MAX_COOR
             f"{int(far.sum())} points lie beyond {max_coord:g} m of the sensor (first: point {first} at "
             f"{np.array2string(scan[first, :3], precision=3)}): corrupt coordinates",
         )
+    if _all_the_same(scan[:, :3]):
+        raise ScanFormatError(
+            path,
+            f"all {scan.shape[0]} points are the same point ({_xyz(scan[0, :3])}) m: "
+            "a degenerate scan (zeroed coordinates or a broken scale)",
+        )
+
+
+def _all_the_same(xyz: np.ndarray) -> bool:
+    """True for two or more points that are all equal (the second point decides most scans at once)."""
+    if xyz.shape[0] < 2 or (xyz[1] != xyz[0]).any():
+        return False
+    return bool((xyz == xyz[0]).all())
+
+
+def _xyz(point: np.ndarray) -> str:
+    return ", ".join(f"{v:g}" for v in point.tolist())

@@ -34,10 +34,11 @@ import numpy as np
 from dsnet_core.errors import LabelFormatError, PoseFormatError, SequenceLayoutError
 from dsnet_core.io import kitti
 from dsnet_core.io.intensity import CONVENTIONS, infer_convention, normalise_intensity
+from dsnet_core.io.options import as_label_map
 from dsnet_core.io.pointfiles import SUFFIXES, bin_columns, read_points
 from dsnet_core.io.reader import FrameRef
 from dsnet_core.io.trajectory import read_tum, tum_poses_at
-from dsnet_core.labels import LabelMap, load_label_map
+from dsnet_core.labels import LabelMap
 
 
 def scan_files(folder: Path) -> dict[str, list[Path]]:
@@ -97,12 +98,12 @@ class FolderReader:
             raise SequenceLayoutError(self.root, f"order must be 'name' or 'time', got {order!r}")
         if intensity != "auto" and intensity not in CONVENTIONS:
             raise SequenceLayoutError(self.root, f"intensity must be 'auto' or one of {CONVENTIONS}")
+        if bin_columns not in (None, 4, 5):
+            raise SequenceLayoutError(self.root, f"bin_columns must be 4 or 5, got {bin_columns!r}")
         self.order, self._intensity = order, intensity
         self.intensity_field, self._bin_columns, self.suffix = intensity_field, bin_columns, suffix
         self.pose_tolerance_s = pose_tolerance_s
-        self.label_map = (
-            label_map if isinstance(label_map, LabelMap) else load_label_map(label_map or "semantic-kitti")
-        )
+        self.label_map = as_label_map(label_map, "semantic-kitti")
         self._lut = self.label_map.lut()
         self._dirs = (
             {self.root.name: self.root}

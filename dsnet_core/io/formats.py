@@ -5,8 +5,10 @@ on output: ``dsnet export --format``), a detection rule on the log's root, and a
 that returns a :class:`~dsnet_core.io.reader.LogReader`. ``format="auto"`` asks every registered
 format's rule in registration order and takes the first that accepts the root; nothing
 accepting is a :class:`UnknownLogFormatError` that lists what was found and the formats that
-exist. The run store records the resolved format and the reader options, so every stage reads
-the log the same way.
+exist. Each format declares its reader options with the values they allow
+(:mod:`dsnet_core.io.options`); :func:`open_log` checks them before the reader opens, so a bad value
+is one line naming the option and what it takes. The run store records the resolved format and
+the reader options, so every stage reads the log the same way.
 
 Add a format by calling :func:`register` (the built-in ones are registered below, at the end).
 """
@@ -18,7 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dsnet_core.errors import ConfigError, DataFormatError
+from dsnet_core.errors import DataFormatError
+from dsnet_core.io import options as opt
+from dsnet_core.io.intensity import CONVENTIONS
+from dsnet_core.io.options import ReaderOption, check_options
 from dsnet_core.io.reader import LogReader
 
 
@@ -35,14 +40,23 @@ class LogFormat:
         detect: True when a root folder (or file) is in this format; cheap (names, not contents).
         open: ``open(root, **options) -> LogReader``.
         description: one line for error messages and ``--help``.
-        options: the reader options ``open`` accepts (``dsnet label --reader-option KEY=VALUE``).
+        options: the reader options ``open`` accepts (``dsnet label --reader-option KEY=VALUE``),
+            each with the values it allows (a plain name allows any value).
     """
 
     name: str
     detect: Callable[[Path], bool]
     open: Callable[..., LogReader]
     description: str
-    options: tuple[str, ...] = ()
+    options: tuple[ReaderOption, ...] = ()
+
+    def __post_init__(self) -> None:
+        specs = tuple(o if isinstance(o, ReaderOption) else ReaderOption(str(o)) for o in self.options)
+        object.__setattr__(self, "options", specs)
+
+    @property
+    def option_names(self) -> tuple[str, ...]:
+        return tuple(o.name for o in self.options)
 
 
 FORMATS: dict[str, LogFormat] = {}
@@ -87,20 +101,28 @@ def open_log(root: str | Path, format: str = "auto", options: dict[str, Any] | N
 
     Raises:
         UnknownLogFormatError: unknown name, or nothing detected.
-        ConfigError: an option the format's reader does not take (the message lists its options).
+        ConfigError: an option the format's reader does not take (the message lists its options),
+            or a value the option does not allow (the message says what it allows).
         DataFormatError: the reader's own checks of the root.
+    """
+    name, parsed = check_reader_options(root, format, options)
+    return FORMATS[name].open(Path(root).expanduser(), **parsed)
+
+
+def check_reader_options(
+    root: str | Path, format: str = "auto", options: dict[str, Any] | None = None
+) -> tuple[str, dict[str, Any]]:
+    """The log's format name and its parsed reader options, checked without opening the log (cheap:
+    a command can refuse a bad option before it starts anything).
+
+    Raises:
+        UnknownLogFormatError: unknown name, or nothing detected.
+        ConfigError: an option the format's reader does not take, or a value it does not allow.
     """
     name = detect_format(root) if format == "auto" else format
     if name not in FORMATS:
         raise UnknownLogFormatError(root, f"unknown format {name!r}; formats: {', '.join(FORMATS)}")
-    fmt = FORMATS[name]
-    unknown = sorted(set(options or {}) - set(fmt.options))
-    if unknown:
-        raise ConfigError(
-            f"{root}: the {name} reader has no option {', '.join(map(repr, unknown))}; its options are "
-            f"{', '.join(fmt.options) or 'none'}"
-        )
-    return fmt.open(Path(root).expanduser(), **(options or {}))
+    return name, check_options(root, name, FORMATS[name].options, options)
 
 
 def _listing(path: Path, limit: int = 8) -> str:
@@ -161,13 +183,21 @@ def _open_folder(root: Path, **options: Any) -> LogReader:
     return FolderReader(root, **options)
 
 
+SCAN_SUFFIXES = (".bin", ".npy", ".npz", ".pcd", ".ply", ".las", ".laz")
+"""The folder reader's scan suffixes (``pointfiles.SUFFIXES``, which a test keeps equal: importing
+it here would load numba with every import of this registry)."""
+_CONVENTIONS = ("auto", *CONVENTIONS)
+_INTENSITY = ReaderOption("intensity", f"one of {', '.join(_CONVENTIONS)}", opt.choice(*_CONVENTIONS))
+_INTENSITY_FIELD = ReaderOption("intensity_field", "the name of a point field", opt.text)
+_LABEL_MAP = ReaderOption("label_map", opt.label_map_allowed(), opt.label_map())
+
 register(
     LogFormat(
         "semantickitti",
         _is_semantickitti,
         _open_semantickitti,
         "sequences/SS/velodyne/*.bin with optional labels/, poses.txt, calib.txt, times.txt",
-        ("label_map", "check_labels"),
+        (_LABEL_MAP, ReaderOption("check_labels", "true or false", opt.boolean)),
     )
 )
 register(
@@ -176,7 +206,14 @@ register(
         _is_nuscenes,
         _open_nuscenes,
         "v1.0-*/ JSON tables with samples/ and sweeps/ LIDAR_TOP .pcd.bin, optional panoptic/ and lidarseg/",
-        ("version", "sweeps", "channel", "label_map"),
+        (
+            ReaderOption("version", "the name of a v1.0-* table folder", opt.text),
+            ReaderOption("sweeps", "true or false", opt.boolean),
+            ReaderOption("channel", "a sensor channel (LIDAR_TOP)", opt.text),
+            ReaderOption(
+                "label_map", opt.label_map_allowed("panoptic-nuscenes"), opt.label_map("panoptic-nuscenes")
+            ),
+        ),
     )
 )
 register(
@@ -185,7 +222,14 @@ register(
         _is_rosbag,
         _open_rosbag,
         "a ROS 2 bag (folder with metadata.yaml, or .mcap/.db3) or a folder of bags, PointCloud2 + /tf",
-        ("topic", "fixed_frame", "intensity", "intensity_field", "tf_tolerance_s", "label_map"),
+        (
+            ReaderOption("topic", "a PointCloud2 topic name", opt.text),
+            ReaderOption("fixed_frame", "a tf frame name", opt.text),
+            _INTENSITY,
+            _INTENSITY_FIELD,
+            ReaderOption("tf_tolerance_s", "seconds, a number ≥ 0", opt.seconds),
+            _LABEL_MAP,
+        ),
     )
 )
 register(
@@ -194,6 +238,18 @@ register(
         _is_folder,
         _open_folder,
         "a folder (or folders) of .bin/.npy/.npz/.pcd/.ply/.las/.laz scans, optional poses.txt/times.txt",
-        ("order", "intensity", "intensity_field", "bin_columns", "suffix", "label_map", "pose_tolerance_s"),
+        (
+            ReaderOption("order", "name or time", opt.choice("name", "time")),
+            _INTENSITY,
+            _INTENSITY_FIELD,
+            ReaderOption(
+                "bin_columns",
+                "4 or 5 (float32 columns of the .bin scans: x y z intensity [ring])",
+                opt.int_choice(4, 5),
+            ),
+            ReaderOption("suffix", f"one of {', '.join(SCAN_SUFFIXES)}", opt.suffix(SCAN_SUFFIXES)),
+            _LABEL_MAP,
+            ReaderOption("pose_tolerance_s", "seconds, a number ≥ 0", opt.seconds),
+        ),
     )
 )

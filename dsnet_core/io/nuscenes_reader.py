@@ -27,20 +27,26 @@ the map, radar and camera tables.
 
 from __future__ import annotations
 
-import json
 from functools import cache
 from pathlib import Path
 
 import numpy as np
 
-from dsnet_core.errors import LabelFormatError, ScanFormatError, TableFormatError
+from dsnet_core.errors import ConfigError, LabelFormatError, ScanFormatError, TableFormatError
 from dsnet_core.io.checks import check_points
-from dsnet_core.io.geometry import pose_matrix
 from dsnet_core.io.intensity import normalise_intensity
+from dsnet_core.io.nuscenes_tables import (
+    TABLES,
+    index_table,
+    index_tables,
+    is_lidar_record,
+    load_table,
+    rigid,
+    short,
+)
+from dsnet_core.io.options import as_label_map
 from dsnet_core.io.reader import FrameRef
-from dsnet_core.labels import LabelMap, load_label_map
-
-TABLES = ("scene", "sample", "sample_data", "ego_pose", "calibrated_sensor", "sensor", "category")
+from dsnet_core.labels import LabelMap
 
 
 def find_versions(root: Path) -> list[str]:
@@ -58,7 +64,7 @@ class NuScenesReader:
         version: the table folder (``v1.0-mini``); default the only one present.
         sweeps: also return the sweeps between keyframes (they have no ground truth).
         channel: the LiDAR sensor channel.
-        label_map: accepted for interface symmetry; must be the ``panoptic-nuscenes`` map.
+        label_map: accepted for interface symmetry; must be the ``panoptic-nuscenes`` map (or its name).
 
     Attributes:
         intensity: the source intensity convention (``uint8``); scans are returned in 0–1.
@@ -74,7 +80,7 @@ class NuScenesReader:
         version: str | None = None,
         sweeps: bool = False,
         channel: str = "LIDAR_TOP",
-        label_map: LabelMap | None = None,
+        label_map: LabelMap | str | None = None,
     ) -> None:
         self.root = Path(root).resolve()
         versions = find_versions(self.root)
@@ -90,19 +96,24 @@ class NuScenesReader:
         self.version = version
         self.sweeps = bool(sweeps)
         self.channel = channel
-        self.label_map = label_map or load_label_map("panoptic-nuscenes")
+        self.label_map = as_label_map(label_map, "panoptic-nuscenes")
+        if self.label_map.name != "panoptic-nuscenes":
+            raise ConfigError(
+                f"{self.root}: nuScenes ground truth is read with the panoptic-nuscenes label map, "
+                f"not {self.label_map.name}"
+            )
         self._dir = self.root / version
         self._t = {name: self._load(name, required=True) for name in TABLES}
         self._gt = {name: self._load(name, required=False) for name in ("panoptic", "lidarseg")}
         self._check_categories()
         self._frames = cache(self._list_frames)
-        self._sd = {r["token"]: r for r in self._t["sample_data"]}
-        self._ego = {r["token"]: r for r in self._t["ego_pose"]}
-        self._calib = {r["token"]: r for r in self._t["calibrated_sensor"]}
+        index = index_tables(self._dir, self._t)
+        self._sd, self._ego, self._calib = index["sample_data"], index["ego_pose"], index["calibrated_sensor"]
         self._label_files = {}
         for name in ("lidarseg", "panoptic"):  # panoptic wins where both exist
-            for rec in self._gt[name] or []:
-                self._label_files[rec["sample_data_token"]] = (name, rec["filename"])
+            table = self._gt[name] or []
+            for token, rec in index_table(self._dir / f"{name}.json", table, "sample_data_token").items():
+                self._label_files[token] = (name, rec["filename"])
 
     # -- protocol ------------------------------------------------------------------------------
     def sequences(self) -> list[str]:
@@ -152,13 +163,16 @@ class NuScenesReader:
         return general | (instance << 16)
 
     def pose(self, frame: FrameRef) -> np.ndarray | None:
-        """float64 ``(4, 4)``: LiDAR → global, ``ego_pose ∘ calibrated_sensor``."""
+        """float64 ``(4, 4)``: LiDAR → global, ``ego_pose ∘ calibrated_sensor``.
+
+        Raises:
+            TableFormatError: a record it needs is missing, or holds no 3 finite translation
+                values or no unit quaternion (naming the table file and the record's token).
+        """
         sd = self._sd[frame.frame_id]
         ego = self._record(self._ego, sd["ego_pose_token"], "ego_pose", frame.frame_id)
         cal = self._record(self._calib, sd["calibrated_sensor_token"], "calibrated_sensor", frame.frame_id)
-        return pose_matrix(ego["translation"], ego["rotation"]) @ pose_matrix(
-            cal["translation"], cal["rotation"]
-        )
+        return rigid(self._dir / "ego_pose.json", ego) @ rigid(self._dir / "calibrated_sensor.json", cal)
 
     def poses(self, sequence: str) -> np.ndarray | None:
         return np.stack([self.pose(f) for f in self.frames(sequence)])
@@ -179,18 +193,7 @@ class NuScenesReader:
 
     # -- helpers -------------------------------------------------------------------------------
     def _load(self, name: str, required: bool) -> list[dict] | None:
-        path = self._dir / f"{name}.json"
-        if not path.is_file():
-            if required:
-                raise TableFormatError(path, "table is missing")
-            return None
-        try:
-            table = json.loads(path.read_bytes())
-        except (OSError, ValueError) as exc:
-            raise TableFormatError(path, f"not a readable JSON table: {exc}") from exc
-        if not isinstance(table, list):
-            raise TableFormatError(path, "expected a JSON list of records")
-        return table
+        return load_table(self._dir / f"{name}.json", name, required)
 
     def _check_categories(self) -> None:
         if not any(self._gt.values()):
@@ -201,7 +204,12 @@ class NuScenesReader:
                 raise TableFormatError(
                     path, f"category {rec.get('name')!r} has no 'index' (not nuScenes-lidarseg)"
                 )
-            want = self.label_map.labels.get(int(rec["index"]))
+            if type(rec["index"]) is not int:
+                raise TableFormatError(
+                    path,
+                    f"category {rec.get('name')!r} has index {short(rec['index'])}, expected an integer",
+                )
+            want = self.label_map.labels.get(rec["index"])
             if want != rec["name"]:
                 raise TableFormatError(
                     path, f"category index {rec['index']} is {rec['name']!r}, the label map says {want!r}"
@@ -216,8 +224,11 @@ class NuScenesReader:
         lidar_cal = {c["token"] for c in self._t["calibrated_sensor"] if c["sensor_token"] in sensors}
         sample_scene = {s["token"]: s["scene_token"] for s in self._t["sample"]}
         out: dict[str, list[dict]] = {}
-        for sd in self._t["sample_data"]:
-            if sd["calibrated_sensor_token"] in lidar_cal and (self.sweeps or sd["is_key_frame"]):
+        path = self._dir / "sample_data.json"
+        for i, sd in enumerate(self._t["sample_data"]):
+            if not is_lidar_record(path, i, sd, lidar_cal):
+                continue
+            if self.sweeps or sd["is_key_frame"]:
                 scene = sample_scene.get(sd["sample_token"])
                 if scene is None:
                     raise TableFormatError(

@@ -1,7 +1,9 @@
 """``sensor_msgs/PointCloud2`` messages -> points, fields found by name and datatype.
 
 A cloud is ``height × width`` points (height 1: unorganised; > 1: organised, rows ``row_step``
-bytes apart), each ``point_step`` bytes holding the named fields at their offsets. x, y, z must
+bytes apart), each ``point_step`` bytes holding the named fields at their offsets; its data is
+exactly ``row_step × height`` bytes (a cloud whose layout covers part of its data is an error,
+not a partial read). x, y, z must
 be FLOAT32 or FLOAT64; the intensity is the field named by the caller, else the first of
 ``intensity`` and ``reflectivity`` present (UINT8, UINT16 or a float; any other datatype is an
 error). Points whose x, y or z is NaN or inf (no return) are dropped and counted; finite points
@@ -56,6 +58,42 @@ def cloud_dtype(msg: Any, where: str | Path) -> np.dtype:
         raise BagFormatError(where, f"fields do not fit in point_step {msg.point_step}: {exc}") from exc
 
 
+def check_layout(
+    data: np.ndarray, height: int, width: int, row_step: int, point_step: int, where: str | Path
+) -> None:
+    """A cloud's data must be ``row_step × height`` bytes, each row holding ``width`` points of
+    ``point_step`` bytes (``width × point_step ≤ row_step``) and then only zero bytes (alignment
+    padding): data past ``width`` points that is not zero is points the layout does not count.
+
+    Args:
+        data: uint8 ``(size,)``, the message's data.
+
+    Raises:
+        BagFormatError: naming ``where``, the layout's numbers and what the data holds.
+    """
+    used = width * point_step
+    if used > row_step:
+        raise BagFormatError(
+            where,
+            f"cloud rows of width {width} × point_step {point_step} = {used} bytes do not fit in row_step "
+            f"{row_step}",
+        )
+    if data.size != height * row_step:
+        held = f" ({data.size // row_step} rows)" if row_step and data.size % row_step == 0 else ""
+        raise BagFormatError(
+            where,
+            f"cloud data has {data.size} bytes{held}, its layout height {height} × row_step {row_step} = "
+            f"{height * row_step} ({height} × {width} points): the layout and the data disagree",
+        )
+    if used < row_step and data.size and data.reshape(height, row_step)[:, used:].any():
+        room = f" (room for {(row_step - used) // point_step} more points)" if point_step else ""
+        raise BagFormatError(
+            where,
+            f"cloud rows hold {row_step - used} bytes past width {width} × point_step {point_step}{room} "
+            "that are not zero padding: the layout covers part of the data",
+        )
+
+
 def decode_cloud(msg: Any, where: str | Path, intensity_field: str | None = None) -> Cloud:
     """Decode a deserialised PointCloud2 message.
 
@@ -64,19 +102,16 @@ def decode_cloud(msg: Any, where: str | Path, intensity_field: str | None = None
         intensity_field: the intensity field's name (default: ``intensity``, else ``reflectivity``).
 
     Raises:
-        BagFormatError: x/y/z missing or not float, data shorter than the layout, a named
-            intensity field missing.
+        BagFormatError: x/y/z missing or not float, data of another length than the layout's
+            ``row_step × height`` (:func:`check_layout`), a named intensity field missing.
         IntensityFormatError: an intensity field of an unsupported datatype.
     """
     dt = cloud_dtype(msg, where)
     h, w = int(msg.height), int(msg.width)
+    row_step, point_step = int(msg.row_step), int(msg.point_step)
     data = np.asarray(msg.data, dtype=np.uint8)
-    need = 0 if h * w == 0 else (h - 1) * int(msg.row_step) + w * int(msg.point_step)
-    if data.size < need:
-        raise BagFormatError(where, f"cloud data has {data.size} bytes, its {h}×{w} layout needs {need}")
-    pts = np.ndarray((h, w), dtype=dt, buffer=data, strides=(int(msg.row_step), int(msg.point_step))).reshape(
-        -1
-    )
+    check_layout(data, h, w, row_step, point_step, where)
+    pts = np.ndarray((h, w), dtype=dt, buffer=data, strides=(row_step, point_step)).reshape(-1)
     for c in "xyz":
         if c not in dt.names:
             raise BagFormatError(where, f"cloud has no {c} field (fields: {', '.join(dt.names)})")

@@ -10,7 +10,8 @@ nuScenes) columns; :func:`bin_columns` states the detection rule.
 ``.npy``: a plain ``(N, 3|4|5)`` array (same column meaning) or a structured array with named
 fields. ``.npz``: an array ``points`` (or ``scan``) as for ``.npy``, or arrays ``x``, ``y``, ``z``
 and an optional intensity array. ``.ply``: the ``vertex`` element (plyfile). ``.las``/``.laz``:
-scaled coordinates and the uint16 ``intensity`` (laspy, lazrs for LAZ).
+scaled coordinates (scale factors of 0 or not finite are refused) and the uint16 ``intensity``
+(laspy, lazrs for LAZ).
 """
 
 from __future__ import annotations
@@ -238,6 +239,13 @@ def _las(path: Path, _: int, want: str | None) -> Points:
             raise MissingExtraError("lazrs", "formats", f"{path}: LAZ scans") from exc
         raise PointFileFormatError(path, f"not a readable LAS/LAZ file: {msg}") from exc
     h = las.header
+    scales, offsets = np.asarray(h.scales, np.float64), np.asarray(h.offsets, np.float64)
+    if not (np.isfinite(scales).all() and np.isfinite(offsets).all()) or (scales == 0).any():
+        raise PointFileFormatError(
+            path,
+            f"header scale factors {scales.tolist()} and offsets {offsets.tolist()} are degenerate (a scale "
+            "of 0 puts every point at the offset; a NaN or inf one nowhere): not a usable LAS header",
+        )
     xyz = np.empty((len(las.points), 3), dtype=np.float32)
     for i, (c, scale, offset) in enumerate(zip("XYZ", h.scales, h.offsets, strict=True)):
         xyz[:, i] = np.asarray(las.points[c], dtype=np.float64) * scale + offset

@@ -10,10 +10,14 @@ repeats), its timestamp that stamp in seconds. Points with NaN/inf coordinates a
 counted (:meth:`RosbagReader.dropped_points`).
 
 Poses come from ``/tf`` and ``/tf_static``: the transform from ``fixed_frame`` (default ``map``,
-else ``odom``, whichever the tree has) to the cloud's ``header.frame_id``, interpolated at the
+else ``odom``, whichever the tree has) to each cloud's ``header.frame_id``, interpolated at the
 cloud's stamp. Without such a transform the reader has no poses (``--estimate-poses`` applies);
 a ``fixed_frame`` that was asked for and is missing, or a stamp outside the transforms' time
-span (beyond ``tf_tolerance_s``), is an error.
+span (beyond ``tf_tolerance_s``), is an error. So are clouds of one topic in several frames
+(``header.frame_id``) that no tf relates to a fixed frame: odometry over scans from different
+sensors, or scans stacked in no common frame, would be wrong; every frame's pose is that error,
+so ``dsnet describe`` names the frames and ``dsnet label`` refuses (or quarantines every frame
+with ``--on-error skip``).
 
 Not supported (yet): ROS 1 ``.bag`` files (not detected); compressed clouds
 (``CompressedPointCloud2``); PointCloud2 fields with ``count`` > 1 (skipped); motion compensation
@@ -33,10 +37,11 @@ import numpy as np
 
 from dsnet_core.errors import BagFormatError, MissingExtraError, PoseFormatError
 from dsnet_core.io.intensity import CONVENTIONS, infer_convention, normalise_intensity
+from dsnet_core.io.options import as_label_map
 from dsnet_core.io.pointcloud2 import Cloud, decode_cloud
 from dsnet_core.io.reader import FrameRef
 from dsnet_core.io.tf import TfTree
-from dsnet_core.labels import LabelMap, load_label_map
+from dsnet_core.labels import LabelMap
 
 CLOUD_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/PointCloud2")
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage")
@@ -84,7 +89,7 @@ class RosbagReader:
         intensity: str = "auto",
         intensity_field: str | None = None,
         tf_tolerance_s: float = 0.05,
-        label_map: LabelMap | None = None,
+        label_map: LabelMap | str | None = None,
     ) -> None:
         try:
             import rosbags  # noqa: F401
@@ -95,7 +100,7 @@ class RosbagReader:
             raise BagFormatError(self.root, f"intensity must be 'auto' or one of {CONVENTIONS}")
         self.topic, self.fixed_frame, self._intensity = topic, fixed_frame, intensity
         self.intensity_field, self.tf_tolerance_s = intensity_field, tf_tolerance_s
-        self.label_map = label_map or load_label_map("semantic-kitti")
+        self.label_map = as_label_map(label_map, "semantic-kitti")
         if is_bag(self.root):
             self._bags = {self.root.stem if self.root.is_file() else self.root.name: self.root}
         else:
@@ -132,17 +137,27 @@ class RosbagReader:
         return out
 
     def sensor_fields(self, sequence: str) -> str:
-        """The topic, the cloud frame and the fields read (x y z and the intensity field)."""
+        """The topic, the cloud frame(s) and the fields read (x y z and the intensity field)."""
         index = self._index(sequence)
         first = self._frames(sequence)[0]
         field = self._cloud(first).field or "(no intensity)"
-        return f"x y z {field} (PointCloud2 {index.topic}, frame {index.cloud_frames[0]})"
+        frames = self.cloud_frames(sequence)
+        if len(frames) == 1:
+            return f"x y z {field} (PointCloud2 {index.topic}, frame {index.cloud_frames[0]})"
+        return f"x y z {field} (PointCloud2 {index.topic}, {len(frames)} frames: {_counts(frames)})"
 
     def pose_source(self, sequence: str) -> str | None:
-        """``tf <fixed frame> -> <cloud frame>``, or None when the bag's tf gives no poses."""
+        """``tf <fixed frame> -> <cloud frame(s)>``, or None when the bag's tf gives no poses."""
         if self._poses(sequence) is None:
             return None
-        return f"tf {self.fixed_frame_of(sequence)} -> {self._index(sequence).cloud_frames[0]}"
+        return f"tf {self.fixed_frame_of(sequence)} -> {', '.join(self.cloud_frames(sequence))}"
+
+    def cloud_frames(self, sequence: str) -> dict[str, int]:
+        """The clouds' ``header.frame_id`` values in order of first appearance, with their counts."""
+        counts: dict[str, int] = {}
+        for frame in self._index(sequence).cloud_frames:
+            counts[frame] = counts.get(frame, 0) + 1
+        return counts
 
     def dropped_points(self, frame: FrameRef) -> int:
         """NaN/inf returns dropped from a frame's cloud."""
@@ -315,13 +330,24 @@ class RosbagReader:
         """(poses ``(F, 4, 4)`` with NaN rows where no transform exists, the errors of those rows)."""
         index = self._index(sequence)
         fixed = self.fixed_frame_of(sequence)
-        if fixed is None or not index.tf.connected(fixed, index.cloud_frames[0]):
+        frames = self.cloud_frames(sequence)
+        if fixed is None or not any(index.tf.connected(fixed, f) for f in frames):
             if self.fixed_frame is not None:
                 raise PoseFormatError(
                     self._bag(sequence),
-                    f"tf does not connect {fixed} to the cloud frame {index.cloud_frames[0]!r}",
+                    f"tf does not connect {fixed} to the cloud frame{'s' if len(frames) > 1 else ''} "
+                    f"{', '.join(map(repr, frames))}",
                 )
-            return None
+            if len(frames) == 1:
+                return None  # one sensor frame, no poses: odometry (--estimate-poses) may give them
+            tf_frames = ", ".join(sorted(index.tf.frames())) or "none"
+            error = PoseFormatError(
+                self._bag(sequence),
+                f"clouds on {index.topic} are in {len(frames)} frames ({_counts(frames)}) and no tf relates "
+                f"them to a fixed frame (tf frames: {tf_frames}): their points cannot be put in one frame; "
+                "record /tf (--fixed-frame names its world frame) or label one sensor's topic",
+            )
+            return np.full((len(index.stamps), 4, 4), np.nan), dict.fromkeys(range(len(index.stamps)), error)
         out = np.full((len(index.stamps), 4, 4), np.nan)
         errors = {}
         for i, (stamp, cloud_frame) in enumerate(zip(index.stamps, index.cloud_frames, strict=True)):
@@ -336,3 +362,7 @@ class RosbagReader:
             else:
                 out[i] = pose
         return out, errors
+
+
+def _counts(frames: dict[str, int]) -> str:
+    return ", ".join(f"{name} ×{n}" for name, n in frames.items())

@@ -22,8 +22,9 @@ import numpy as np
 
 from dsnet_core.errors import LabelFormatError, PoseFormatError, SequenceLayoutError
 from dsnet_core.io import kitti
+from dsnet_core.io.options import as_label_map
 from dsnet_core.io.reader import FrameRef
-from dsnet_core.labels import LabelMap, load_label_map
+from dsnet_core.labels import LabelMap
 
 
 class SemanticKittiReader:
@@ -31,19 +32,20 @@ class SemanticKittiReader:
 
     Args:
         root: dataset root (the folder holding ``sequences/``).
-        label_map: used to reject raw semantic ids the map does not know.
+        label_map: the labels' map (a LabelMap, a bundled map's name or a YAML path; default
+            ``semantic-kitti``), used to reject raw semantic ids the map does not know.
         check_labels: validate raw semantic ids on read.
     """
 
     def __init__(
         self,
         root: str | Path,
-        label_map: LabelMap | None = None,
+        label_map: LabelMap | str | None = None,
         check_labels: bool = True,
     ) -> None:
         self.root = Path(root).resolve()
         self.format = "semantickitti"
-        self.label_map = label_map or load_label_map("semantic-kitti")
+        self.label_map = as_label_map(label_map, "semantic-kitti")
         self.check_labels = check_labels
         if not (self.root / "sequences").is_dir():
             raise SequenceLayoutError(self.root, "no 'sequences/' folder (expected the SemanticKITTI layout)")

@@ -276,3 +276,83 @@ def test_a_scheduled_tick_labels_each_scene_or_scan_folder_once(prefect_api_url,
     if log == "folder":
         shutil.copytree(watched / "drive1", watched / "drive2")
         assert auto_label(params, dataset=log)["labelled"] == ["drive2"]
+
+
+def _refused(output: str, code: int, *texts: str) -> str:
+    """The one ``error:`` line of a refused command (exit 2, no traceback), holding ``texts``."""
+    assert code == 2, output
+    assert "Traceback" not in output, output
+    lines = [line for line in output.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1, output
+    line = " ".join(output[output.index("error:") :].split())  # rich may wrap the line
+    for text in texts:
+        assert text in line, (text, output)
+    return line
+
+
+def _cli_label(cli_env, log, run, *options: str):
+    """``dsnet label`` as a user runs it (a subprocess: its terminal output is what is checked)."""
+    import subprocess
+
+    from tests.flows.conftest import cli
+
+    res = subprocess.run(
+        cli("label", str(log), "--run", str(run), *options),
+        env=cli_env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    return res.stdout + res.stderr, res.returncode
+
+
+def test_the_label_map_reader_option_works_in_describe_and_label(cli_env, logs, ckpt, tmp_path):
+    # `--reader-option label_map=semantic-kitti` (documented) was an AttributeError in describe and ingest
+    log = logs["semantickitti"]
+    args = ["--reader-option", "label_map=semantic-kitti"]
+    res = CliRunner().invoke(app, ["describe", str(log), *args], env={"COLUMNS": "240"})
+    assert res.exit_code == 0, res.output
+    assert "class histogram" in res.output and "car" in res.output
+    out, code = _cli_label(
+        cli_env, log, tmp_path / "run", "--checkpoint", str(ckpt), *args, "--until", "ingest"
+    )
+    assert code == 0, out
+    store = RunStore(tmp_path / "run")
+    assert store.read_run_config()["reader_options"] == {"label_map": "semantic-kitti"}
+    assert store.read_table("00", FRAMES).to_pydict()["status"] == ["ok", "ok"]
+    res = CliRunner().invoke(app, ["describe", str(log), "--reader-option", "label_map=nope"])
+    want = ("reader option label_map='nope' is not allowed", "bundled label map")
+    _refused(res.output, res.exit_code, *want)
+    _refused(*_cli_label(cli_env, log, tmp_path / "r2", "--reader-option", "label_map=nope"), *want)
+    assert not (tmp_path / "r2" / "run.json").exists()
+
+
+@pytest.mark.parametrize(("value", "shown"), [("abc", "'abc'"), ("7", "7")])
+def test_a_bad_bin_columns_value_is_refused_naming_the_option(logs, value, shown):
+    # abc was a TypeError; 7 was accepted, then a misleading intensity error
+    res = CliRunner().invoke(
+        app, ["describe", str(logs["folder"]), "--reader-option", f"bin_columns={value}"]
+    )
+    _refused(
+        res.output,
+        res.exit_code,
+        str(logs["folder"]),
+        f"reader option bin_columns={shown} is not allowed",
+        "4 or 5",
+    )
+
+
+def test_a_bag_whose_clouds_are_in_two_frames(cli_env, logs, ckpt, tmp_path):
+    """With tf each frame gets its own pose and describe names both frames; without tf describe and
+    label refuse in one line naming both (the bag used to describe itself as one frame id)."""
+    ref = SemanticKittiReader(logs["semantickitti"])
+    with_tf = write_bag(ref, tmp_path / "tf" / "run1", frame_ids=("velodyne", "rear"))
+    res = CliRunner().invoke(app, ["describe", str(with_tf)], env={"COLUMNS": "240"})
+    assert res.exit_code == 0, res.output
+    assert "2 frames: velodyne ×1," in res.output and "rear ×1)" in res.output  # a wrapped cell
+    assert "tf odom -> velodyne, rear" in res.output
+    bare = write_bag(ref, tmp_path / "bare" / "run1", tf=None, frame_ids=("velodyne", "rear"))
+    want = ("clouds on /points are in 2 frames (velodyne ×1, rear ×1) and no tf relates them", str(bare))
+    res = CliRunner().invoke(app, ["describe", str(bare)])
+    _refused(res.output, res.exit_code, *want)
+    _refused(*_cli_label(cli_env, bare, tmp_path / "run", "--checkpoint", str(ckpt), "--scans", "1"), *want)

@@ -324,6 +324,8 @@ def write_bag(
     tf: str | None = "odom",
     extra_topic: str | None = None,
     cloud: bool = True,
+    frame_ids: tuple[str, ...] = ("velodyne",),
+    layout: str | None = None,
 ) -> Path:
     """A ROS 2 bag written by rosbags: PointCloud2 on ``/points`` in frame ``velodyne``, and tf
     ``<tf> -> base_link`` (dynamic, at each cloud's stamp) with ``base_link -> velodyne`` static.
@@ -336,6 +338,11 @@ def write_bag(
         tf: the fixed frame, or None for a bag without /tf.
         extra_topic: a second PointCloud2 topic (same clouds).
         cloud: False writes no PointCloud2 topic at all (only /tf).
+        frame_ids: the clouds' frames, in turn (cloud k is in ``frame_ids[k % len]``), each with a
+            static ``base_link -> frame`` transform (the same calibration).
+        layout: a damaged layout of the (unorganised) clouds: ``half_width`` (width covers half the
+            data, row_step the whole), ``short_row_step`` (width and row_step half the data),
+            ``wide`` (width twice the points, past row_step).
     """
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -370,9 +377,10 @@ def write_bag(
         c_static = w.add_connection("/tf_static", tfm.__msgtype__, typestore=ts) if tf else None
         rows = list(frames_of(ref))
         if tf:
-            msg = tfm(transforms=[transform("base_link", "velodyne", cal, rows[0][4])])
+            statics = [transform("base_link", f, cal, rows[0][4]) for f in dict.fromkeys(frame_ids)]
+            msg = tfm(transforms=statics)
             w.write(c_static, bag_ns(rows[0][4]) - 1, ts.serialize_cdr(msg, tfm.__msgtype__))
-        for _fid, scan, _, pose, t in rows:
+        for k, (_fid, scan, _, pose, t) in enumerate(rows):
             log_ns = bag_ns(t) + 1000
             if tf:
                 msg = tfm(transforms=[transform(tf, "base_link", pose @ np.linalg.inv(cal), t)])
@@ -415,8 +423,15 @@ def write_bag(
                 height, width = 1, len(arr)
                 data = np.frombuffer(arr.tobytes(), np.uint8)
                 row_step = data.size
+                if layout == "half_width":
+                    width //= 2
+                elif layout == "short_row_step":
+                    width //= 2
+                    row_step = width * arr.dtype.itemsize
+                elif layout == "wide":
+                    width *= 2
             msg = pc2(
-                header=hdr(stamp=_stamp(ts, t), frame_id="velodyne"),
+                header=hdr(stamp=_stamp(ts, t), frame_id=frame_ids[k % len(frame_ids)]),
                 height=height,
                 width=width,
                 fields=fields,

@@ -203,7 +203,7 @@ def test_ply_without_xyz(tmp_path, text):
 
 @pytest.mark.parametrize("kind", ["pcd", "npz"])
 def test_intensity_column_of_the_wrong_type(tmp_path, kind):
-    xyz = np.zeros((4, 3), np.float32)
+    xyz = np.arange(12, dtype=np.float32).reshape(4, 3)
     if kind == "pcd":
         from pypcd4 import PointCloud
 

@@ -192,3 +192,149 @@ def test_panoptic_with_the_wrong_length(log, tmp_path):
     np.savez_compressed(frame.label_path, data=np.zeros(5, np.uint16))
     with pytest.raises(LabelFormatError, match="has 5 labels but the scan has"):
         reader.labels(frame)
+
+
+def _edited(log, tmp_path, table: str, edit) -> tuple:
+    """A copy of the log whose ``table``.json records went through ``edit(records) -> records``."""
+    import shutil
+
+    _, src, _ = log
+    root = tmp_path / "nus"
+    shutil.copytree(src, root)
+    path = root / "v1.0-mini" / f"{table}.json"
+    path.write_text(json.dumps(edit(json.loads(path.read_text()))))
+    return root, path
+
+
+def _one_line(err, path) -> str:
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: ") and "\n" not in msg
+    return msg
+
+
+def _drop_key_frame(records):
+    del records[1]["is_key_frame"]
+    return records
+
+
+def _set(index: int, key: str, value):
+    def edit(records):
+        records[index][key] = value
+        return records
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("table", "edit", "match"),
+    [
+        ("sample_data", _drop_key_frame, r"record 1 \(token 'sd0001\d+'\) has no 'is_key_frame'"),
+        (
+            "ego_pose",
+            lambda r: [rec["token"] for rec in r],
+            r'record 0 is a JSON string \("ego0000"\), expected an object',
+        ),
+        ("sample_data", lambda r: [*r, dict(r[0])], r"records 0 and 3 have the same token 'sd0000\d+'"),
+        (
+            "sample_data",
+            _set(2, "is_key_frame", "yes"),
+            r"record 2 \(token 'sd0002\d+'\) has is_key_frame \"yes\", expected true or false",
+        ),
+        (
+            "sample_data",
+            _set(0, "timestamp", "noon"),
+            r"record 0 \(token 'sd0000\d+'\) has timestamp \"noon\", expected a number",
+        ),
+        ("sample_data", _set(0, "token", ["a"]), r'record 0 has token \["a"\], expected a text'),
+        (
+            "calibrated_sensor",
+            _set(0, "sensor_token", 7),
+            r"record 0 \(token 'cal-lidar'\) has sensor_token 7, expected a text",
+        ),
+        (
+            "scene",
+            lambda r: [*r, {**r[0], "token": "scene1"}],
+            r"records 0 and 1 have the same name 'scene-0001'",
+        ),
+        (
+            "panoptic",
+            lambda r: [*r, dict(r[0])],
+            r"records 0 and 2 have the same sample_data_token 'sd0000\d+'",
+        ),
+        ("category", _set(3, "index", "3"), r"category '[a-z.]+' has index \"3\", expected an integer"),
+    ],
+    ids=[
+        "no-is_key_frame",
+        "ego_pose-of-strings",
+        "duplicate-sample_data",
+        "is_key_frame-text",
+        "timestamp-text",
+        "token-list",
+        "sensor_token-number",
+        "duplicate-scene-name",
+        "duplicate-panoptic",
+        "category-index-text",
+    ],
+)
+def test_malformed_table_records_are_named_when_the_log_opens(log, tmp_path, table, edit, match):
+    # each was a KeyError/TypeError traceback, or an error blamed on another file (the panoptic .npz)
+    root, path = _edited(log, tmp_path, table, edit)
+    with pytest.raises(TableFormatError, match=match) as err:
+        NuScenesReader(root).frames("scene-0001")
+    _one_line(err, path)
+
+
+@pytest.mark.parametrize(
+    ("table", "field", "value", "match"),
+    [
+        (
+            "ego_pose",
+            "rotation",
+            [0, 0, 0, 0],
+            r"rotation \[0.0, 0.0, 0.0, 0.0\] is not a unit quaternion \(norm 0\)",
+        ),
+        ("ego_pose", "rotation", [1, 0, 0], r"rotation \[1, 0, 0\] is not 4 finite numbers \(w, x, y, z\)"),
+        ("ego_pose", "translation", [0, "1", 0], r'translation \[0, "1", 0\] is not 3 finite numbers'),
+        (
+            "calibrated_sensor",
+            "rotation",
+            [2, 0, 0, 0],
+            r"rotation \[2.0, 0.0, 0.0, 0.0\] is not a unit quaternion \(norm 2\)",
+        ),
+    ],
+)
+def test_a_pose_record_that_is_no_rigid_transform_is_named(log, tmp_path, table, field, value, match):
+    # a zero quaternion: describe exited 0 with a numpy warning and label failed in infer naming no file
+    import warnings
+
+    from dsnet_core.io.describe import summarize
+
+    index = 2 if table == "ego_pose" else 0  # ego_pose 2: the second keyframe (frame 1 is a sweep)
+    root, path = _edited(log, tmp_path, table, _set(index, field, value))
+    reader = NuScenesReader(root)
+    token = json.loads(path.read_text())[index]["token"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy warning on the way
+        with pytest.raises(TableFormatError, match=rf"record '{token}': {match}") as err:
+            summarize(reader)
+        assert _one_line(err, path)
+        with pytest.raises(TableFormatError, match=match):  # what ingest asks, frame by frame
+            reader.pose(reader.frames("scene-0001")[1 if table == "ego_pose" else 0])
+    ok = reader.frames("scene-0001")[0 if table == "ego_pose" else 1]
+    if table == "ego_pose":
+        assert np.isfinite(reader.pose(ok)).all()  # the other records still read
+
+
+def test_the_label_map_option_takes_the_panoptic_nuscenes_map_only(log):
+    from dsnet_core.errors import ConfigError
+
+    _, root, _ = log
+    assert open_log(root, options={"label_map": "panoptic-nuscenes"}).label_map.name == "panoptic-nuscenes"
+    want = (
+        r"reader option label_map='semantic-kitti' is not allowed \(the semantic-kitti label map\); "
+        r"the nuscenes reader takes label_map=panoptic-nuscenes only"
+    )
+    with pytest.raises(ConfigError, match=want):
+        open_log(root, options={"label_map": "semantic-kitti"})
+    with pytest.raises(ConfigError, match="read with the panoptic-nuscenes label map, not semantic-kitti"):
+        NuScenesReader(root, label_map="semantic-kitti")

@@ -149,3 +149,73 @@ def test_intensity_datatype_not_supported(quantised, tmp_path):
     with pytest.raises(IntensityFormatError, match="intensity column has type int32") as err:
         reader.scan(reader.frames("i32")[0])
     assert str(err.value).startswith(f"{bag} [/points @ ") and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("layout", "match"),
+    [
+        (
+            "half_width",
+            r"cloud rows hold \d+ bytes past width \d+ × point_step 16 \(room for \d+ more points\)",
+        ),
+        (
+            "short_row_step",
+            r"cloud data has \d+ bytes.*, its layout height 1 × row_step \d+ = \d+ \(1 × \d+ points\)",
+        ),
+        ("wide", r"cloud rows of width \d+ × point_step 16 = \d+ bytes do not fit in row_step \d+"),
+    ],
+)
+def test_a_cloud_layout_that_covers_part_of_its_data_is_refused(quantised, tmp_path, layout, match):
+    # width × height covering half the data used to read half the points without a word
+    ref = quantised("unit")
+    bag = encode.write_bag(ref, tmp_path / "half", layout=layout)
+    reader = RosbagReader(bag)
+    frame = reader.frames("half")[1]
+    with pytest.raises(BagFormatError, match=match) as err:
+        reader.scan(frame)
+    stamp = encode.bag_ns(ref.timestamp(ref.frames("00")[1]))
+    assert str(err.value).startswith(f"{bag} [/points @ {stamp:019d}]: "), err.value
+    assert "\n" not in str(err.value)
+
+
+def test_zero_row_padding_is_accepted(quantised, tmp_path):
+    # organised clouds with 8 zero bytes after each row (alignment padding) read as before
+    ref = quantised("unit")
+    reader = RosbagReader(encode.write_bag(ref, tmp_path / "pad", organised=True))
+    assert_same_log(reader, ref, times_offset=EPOCH)
+
+
+def test_clouds_in_two_frames_without_tf_are_named_and_refused(quantised, tmp_path):
+    ref = quantised("unit")
+    bag = encode.write_bag(ref, tmp_path / "two", tf=None, frame_ids=("velodyne", "rear"))
+    reader = RosbagReader(bag)
+    assert reader.cloud_frames("two") == {"velodyne": 2, "rear": 1}
+    assert (
+        reader.sensor_fields("two") == "x y z intensity (PointCloud2 /points, 2 frames: velodyne ×2, rear ×1)"
+    )
+    want = (
+        r"clouds on /points are in 2 frames \(velodyne ×2, rear ×1\) and no tf relates them to a fixed "
+        r"frame \(tf frames: none\): their points cannot be put in one frame"
+    )
+    with pytest.raises(PoseFormatError, match=want) as err:
+        reader.poses("two")
+    assert str(err.value).startswith(f"{bag}: ") and "\n" not in str(err.value)
+    for frame in reader.frames("two"):  # each frame's pose: what ingest records or refuses
+        with pytest.raises(PoseFormatError, match=want):
+            reader.pose(frame)
+    # the scans themselves still read (a topic of one sensor frame without tf has no poses at all)
+    assert np.array_equal(reader.scan(reader.frames("two")[2]), ref.scan(ref.frames("00")[2]))
+    one = RosbagReader(encode.write_bag(ref, tmp_path / "one", tf=None))
+    assert one.cloud_frames("one") == {"velodyne": 3} and one.poses("one") is None
+
+
+def test_clouds_in_two_frames_with_tf_each_get_their_pose(quantised, tmp_path):
+    ref = quantised("unit")
+    bag = encode.write_bag(ref, tmp_path / "two", frame_ids=("velodyne", "rear"))
+    reader = RosbagReader(bag)
+    assert reader.pose_source("two") == "tf odom -> velodyne, rear"
+    assert reader.sensor_fields("two").endswith("2 frames: velodyne ×2, rear ×1)")
+    np.testing.assert_allclose(reader.poses("two"), ref.poses("00"), rtol=0, atol=1e-9)
+    lone = encode.write_bag(ref, tmp_path / "lone", tf=None, frame_ids=("a", "b"))
+    with pytest.raises(PoseFormatError, match=r"has no tf frame 'odom' \(tf frames: none\)"):
+        RosbagReader(lone, fixed_frame="odom").poses("lone")

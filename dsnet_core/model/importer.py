@@ -2,8 +2,9 @@
 
 The folder gets ``model.safetensors``, ``shift.safetensors`` (when the file has the shifting MLPs)
 and a model card whose ``training_data["imported"]`` names the source file, its sha256 and what was
-converted (naming scheme, sparse-weight layout, rulebooks, grid convention, counts, taps dropped).
-Conversion itself is :mod:`dsnet_core.model.reference_convert`.
+converted (naming scheme, width, sparse-weight layout, rulebooks, grid convention, counts) and what
+was dropped (the reference's training-only buffers, kernel taps). Reading the file is
+:mod:`dsnet_core.model.reference_file`, conversion :mod:`dsnet_core.model.reference_convert`.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from dsnet_core.labels import LabelMap, load_label_map
 from dsnet_core.model.bundle import save_shift_weights
 from dsnet_core.model.checkpoint import ModelCard, class_map_of, save_checkpoint, sha256_file
 from dsnet_core.model.network import DSNet
-from dsnet_core.model.reference_convert import BANDWIDTHS, KINDS, convert_state, load_reference_file
+from dsnet_core.model.reference_convert import BANDWIDTHS, KINDS, convert_state
+from dsnet_core.model.reference_file import load_reference_file
 
 __all__ = ["KINDS", "import_checkpoint"]
 
@@ -51,7 +53,8 @@ def import_checkpoint(
         The written card.
 
     Raises:
-        CheckpointImportError: unsafe or unreadable file, keys that do not match, wrong class count.
+        CheckpointImportError: not a torch file, unsafe or unreadable, keys that do not match,
+            non-finite weights, wrong class count.
     """
     src, out = Path(src), Path(out)
     state, info = load_reference_file(src)
@@ -72,6 +75,7 @@ def import_checkpoint(
         "source_sha256": sha256_file(src),
         "top_level_keys": info.get("top_level_keys"),
         "reference_epoch": info.get("epoch"),
+        "width": config.width,
         "grid_convention": config.grid.convention,
         "bandwidths": list(bandwidths) if shift_state else [],
         "point_pooling": "max over every point of a voxel (the reference: a random subset of at most 256)",

@@ -2,8 +2,9 @@
 
 Facts from the public model definitions (hongfz16/DS-Net ``network/model_zoo.py``,
 ``network/modules/{spconv_unet,PointNet,pytorch_meanshift}.py``; xinge008/Cylinder3D
-``network/{cylinder_spconv_3d,segmentator_3d_asymm_spconv,cylinder_fea_generator}.py``); the
-parameter list itself is pinned by ``tests/dsnet_core/model/fixtures/reference_parameters.json``.
+``network/{cylinder_spconv_3d,segmentator_3d_asymm_spconv,cylinder_fea_generator}.py``). What the
+reference networks register, as instantiated from those commits (every parameter and buffer with its
+shape), is pinned by ``tests/dsnet_core/model/fixtures/reference_state_dicts.json``.
 
 Two naming schemes hold the same backbone:
 
@@ -11,6 +12,11 @@ Two naming schemes hold the same backbone:
   ``ins_head``, ``pytorch_meanshift.learnable_bandwidth_weights_layer_list`` (DS-Net, 4D-DS-Net);
 - ``"cylinder3d"``: ``cylinder_3d_generator.{PPmodel,fea_compression}`` and
   ``cylinder_3d_spconv_seg`` (backbone and ``logits``) (Cylinder3D).
+
+Besides the modules the network runs, DS-Net registers its semantic loss, a ``CrossEntropyLoss``
+with class weights, as the submodule ``sem_loss``: its ``weight`` buffer, one weight per class, is in
+every file it saves and means nothing at inference (:func:`training_buffers`). Cylinder3D keeps its
+losses outside the network and registers no such buffer.
 """
 
 from __future__ import annotations
@@ -126,6 +132,40 @@ def reference_modules(scheme: str, n_linear: int = 4, iterations: int = 4) -> di
         for j, kind in ((0, "linear"), (1, "bn"), (3, "linear")):
             out[f"{ref}.{j}"] = Target(f"shift.mlps.{i}.{j}", kind, None, "shift")
     return out
+
+
+@dataclass(frozen=True)
+class TrainingBuffer:
+    """A buffer a reference network registers for training only; the importer drops it.
+
+    Attributes:
+        key: its state-dict key.
+        shape: ``"classes"`` (one value per output class) — the only shape such buffers have.
+        about: what it is, for the card and the command's output.
+    """
+
+    key: str
+    shape: str
+    about: str
+
+
+_TRAINING_BUFFERS = {
+    "dsnet": (
+        TrainingBuffer("sem_loss.weight", "classes", "class weights of the semantic loss (CrossEntropyLoss)"),
+    ),
+    "cylinder3d": (),
+}
+
+
+def training_buffers(scheme: str, num_classes: int) -> dict[str, tuple[tuple[int, ...], str]]:
+    """The training-only buffers of a naming scheme: key → (shape, what it is).
+
+    Args:
+        scheme: one of :data:`SCHEMES`.
+        num_classes: the network's output classes (the length of a class-weight buffer).
+    """
+    shapes = {"classes": (num_classes,)}
+    return {b.key: (shapes[b.shape], b.about) for b in _TRAINING_BUFFERS[scheme]}
 
 
 def split_key(key: str) -> tuple[str, str]:

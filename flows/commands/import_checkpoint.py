@@ -24,14 +24,31 @@ def import_checkpoint(
 
     with errors_exit():
         card = run_import(src, out, kind, layout=layout, rulebooks=rulebooks)
-    imp = card.training_data["imported"]
-    conv = imp["converted"]
-    typer.echo(
-        f"wrote checkpoint {out.resolve()}: {imp['kind']} from {imp['source_file']} "
-        f"(sha256 {imp['source_sha256'][:12]}), {conv['sparse_convolutions']} sparse convolutions "
-        f"({imp['sparse_layout']} layout, {imp['rulebooks']} rulebooks), {conv['batch_norms']} batch "
-        f"norms, {conv['linear_layers']} linear layers, {conv['shifting_iterations']} shifting "
-        f"iterations; grid convention {imp['grid_convention']}"
-    )
+    for line in summary_lines(out, card.architecture, card.training_data["imported"]):
+        typer.echo(line)
+
+
+_LAYOUTS = {"spconv1": "spconv 1.x (*kernel, in, out)", "spconv2": "spconv 2.x (out, *kernel, in)"}
+
+
+def summary_lines(out: Path, architecture: dict, imp: dict) -> list[str]:
+    """What the import took and dropped, one fact a line: kind, width, layout, grid, dropped buffers."""
+    conv, dropped, taps = imp["converted"], imp["dropped"], len(imp["dropped"]["kernel_taps"])
+    epoch = f", epoch {imp['reference_epoch']}" if imp["reference_epoch"] is not None else ""
+    buffers = ", ".join(f"{b['key']} {tuple(b['shape'])} ({b['about']})" for b in dropped["training_buffers"])
+    lines = [
+        f"wrote checkpoint {out.resolve()}",
+        f"  source: {imp['source_file']} (sha256 {imp['source_sha256'][:12]}{epoch})",
+        f"  kind: {imp['kind']}{' (semantics only)' if imp['semantic_only'] else ''}",
+        f"  width: {architecture['width']} ({architecture['num_classes']} classes)",
+        f"  layout: {_LAYOUTS[imp['sparse_layout']]}, {imp['rulebooks']} rulebooks",
+        f"  grid convention: {imp['grid_convention']}",
+        f"  converted: {conv['sparse_convolutions']} sparse convolutions, {conv['batch_norms']} batch norms, "
+        f"{conv['linear_layers']} linear layers, {conv['shifting_iterations']} shifting iterations",
+        f"  dropped buffers: {buffers or 'none'}",
+    ]
+    if taps:
+        lines.append(f"  dropped kernel taps: {taps} weights beyond their shared rulebook's taps")
     if imp["semantic_only"]:
-        typer.echo(f"semantics only: train the instance head with dsnet train dsnet DATA --init-from {out}")
+        lines.append(f"semantics only: train the instance head with dsnet train dsnet DATA --init-from {out}")
+    return lines

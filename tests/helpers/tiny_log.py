@@ -39,11 +39,12 @@ def tiny_frame(index: int, seed: int = 0, n: int = 3000) -> tuple[np.ndarray, np
     return np.concatenate([pts, remission], 1), labels
 
 
-def write_tiny_log(root: Path, frames: int = 2, sequence: str = "00", seed: int = 0) -> Path:
-    """Write ``frames`` frames (with identity-based poses) under ``root/sequences/<sequence>``."""
+def write_tiny_log(root: Path, frames: int = 2, sequence: str = "00", seed: int = 0, n: int = 3000) -> Path:
+    """Write ``frames`` frames of about ``n`` points (with identity-based poses) under
+    ``root/sequences/<sequence>``."""
     seq = Path(root) / "sequences" / sequence
     for i in range(frames):
-        pts, lab = tiny_frame(i, seed)
+        pts, lab = tiny_frame(i, seed, n)
         write_frame(seq, f"{i:06d}", pts, lab)
     poses = np.repeat(np.eye(4)[None], frames, 0)
     poses[:, 0, 3] = np.arange(frames) * 0.5

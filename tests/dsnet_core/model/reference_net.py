@@ -183,9 +183,19 @@ class Meanshift(nn.Module):
 
 class DSNetReference(nn.Module):
     """DS-Net's ``PolarOffsetSpconvPytorchMeanshift`` names: ``fea_compression``, ``backbone``,
-    ``sem_head``, ``ins_head``, ``vfe_model.PPmodel``, ``pytorch_meanshift``."""
+    ``sem_head``, ``ins_head``, ``vfe_model.PPmodel``, ``pytorch_meanshift``, and its semantic loss
+    registered as a submodule (``sem_loss``, a class-weighted cross entropy: a training-only buffer
+    in every file it saves). ``meanshift=False``: ``PolarOffsetSpconv`` (the offset-pretrained
+    step, no shifting MLPs)."""
 
-    def __init__(self, w: int = 32, classes: int = 20, point_mlp=(64, 128, 256, 64), compress: int = 16):
+    def __init__(
+        self,
+        w: int = 32,
+        classes: int = 20,
+        point_mlp=(64, 128, 256, 64),
+        compress: int = 16,
+        meanshift: bool = True,
+    ):
         super().__init__()
         self.fea_compression = nn.Sequential(nn.Linear(point_mlp[-1], compress), nn.ReLU())
         self.backbone = Backbone(w, compress)
@@ -193,7 +203,9 @@ class DSNetReference(nn.Module):
         self.ins_head = InsHead(w)
         self.vfe_model = nn.Module()
         self.vfe_model.PPmodel = pp_model(point_mlp)
-        self.pytorch_meanshift = Meanshift(w)
+        self.sem_loss = nn.CrossEntropyLoss(weight=torch.ones(classes), ignore_index=0)
+        if meanshift:
+            self.pytorch_meanshift = Meanshift(w)
 
     def forward(self, points: np.ndarray, grid, run: Run):
         """One scan ``(N, 4)`` float32 → per-point logits ``(N, C)`` and offsets ``(N, 3)``."""

@@ -1,14 +1,15 @@
 """The checkpoint importer against a reconstruction of the reference networks in spconv 2.x.
 
-Verified against a reconstruction written from the reference's public model definitions (pinned by
-``fixtures/reference_parameters.json``), not against the released files, which cannot be fetched
-here. The numeric comparison uses a small width (4) of the same architecture; the full-width name
-and shape lists are checked against the fixture.
+The reconstruction (``reference_net.py``) registers what the reference networks register as
+instantiated from their own code (``fixtures/reference_state_dicts.json``: hongfz16/DS-Net at
+commit 4a73e2fe529798ad4ec3256d89411f59d2c10416, xinge008/Cylinder3D at commit
+30a0abb2ca4c657a821a5e9a343934b0789b2365; see ``fixtures/README.md``), checked below at the
+released width; its numbers are checked at a small width (4) of the same architecture. The
+released files themselves cannot be fetched here. Full-width files: ``test_reference_layout.py``.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -21,8 +22,7 @@ from dsnet_core.model.bundle import load_shift_weights
 from dsnet_core.model.checkpoint import load_checkpoint, sha256_file
 from dsnet_core.model.cylinder import CylinderGrid, cylinder_features
 from dsnet_core.model.importer import import_checkpoint
-from dsnet_core.model.presets import CYLINDER3D, REFERENCE
-from dsnet_core.model.reference_convert import convert_state
+from tests.dsnet_core.model.recorded import NETWORKS, shapes
 from tests.dsnet_core.model.reference_net import (
     Cylinder3DReference,
     DSNetReference,
@@ -31,8 +31,6 @@ from tests.dsnet_core.model.reference_net import (
     reference_features,
     spconv1_state,
 )
-
-FIXTURE = json.loads((Path(__file__).parent / "fixtures" / "reference_parameters.json").read_text())
 
 
 @pytest.fixture(autouse=True)
@@ -68,25 +66,22 @@ def shapes_in_spconv1(module: torch.nn.Module) -> dict[str, list[int]]:
     }
 
 
-@pytest.mark.parametrize(("name", "cls"), [("dsnet", DSNetReference), ("cylinder3d", Cylinder3DReference)])
-def test_reconstruction_has_the_reference_parameters(name, cls):
+@pytest.mark.parametrize(
+    ("name", "make"),
+    [
+        ("dsnet", lambda: DSNetReference(32)),
+        ("dsnet4d", lambda: DSNetReference(32)),
+        ("dsnet_offset", lambda: DSNetReference(32, meanshift=False)),
+        ("cylinder3d", lambda: Cylinder3DReference(32)),
+    ],
+)
+def test_reconstruction_registers_what_the_reference_registers(name, make):
+    """Every key and shape, parameters and buffers, of the reference as instantiated."""
     with torch.device("meta"):
-        net = cls(32)
-    assert shapes_in_spconv1(net) == {k: s for k, s in FIXTURE[name]["parameters"]}
-
-
-@pytest.mark.parametrize(("name", "preset"), [("dsnet", REFERENCE), ("cylinder3d", CYLINDER3D)])
-def test_full_width_reference_maps_onto_the_preset(name, preset):
-    state = {k: torch.empty(s, device="meta") for k, s in FIXTURE[name]["parameters"]}
-    kind = "dsnet" if name == "dsnet" else "cylinder3d"
-    config, _, shift, summary = convert_state(state, kind, Path(f"{name}.pth"))
-    assert config == preset
-    assert summary["sparse_layout"] == "spconv1" and summary["rulebooks"] == "spconv1-shared"
-    assert summary["taps_dropped"] == [
-        f"{'backbone' if kind == 'dsnet' else 'cylinder_3d_spconv_seg'}.upBlock{i}.conv3.weight"
-        for i in range(4)
-    ]
-    assert len(shift) == (4 * 9 if kind == "dsnet" else 0)
+        net = make()
+    assert shapes_in_spconv1(net) == shapes(name)
+    buffers = {k for k, _ in net.named_buffers()}
+    assert buffers == {key for key, _, _, kind, _ in NETWORKS[name]["state_dict"] if kind == "buffer"}
 
 
 def save_reference(net: torch.nn.Module, path: Path, layout: str, wrapped: bool) -> Path:
@@ -119,7 +114,14 @@ def test_dsnet_import_reproduces_the_reference(tmp_path, layout):
     assert imported["source_sha256"] == sha256_file(src)
     assert imported["sparse_layout"] == layout
     assert imported["rulebooks"] == ("spconv1-shared" if layout == "spconv1" else "per-layer")
-    assert imported["top_level_keys"] == FIXTURE["dsnet"]["top_level_keys"]
+    assert imported["top_level_keys"] == NETWORKS["dsnet"]["top_level_keys"]
+    assert imported["dropped"]["training_buffers"] == [
+        {
+            "key": "sem_loss.weight",
+            "shape": [20],
+            "about": "class weights of the semantic loss (CrossEntropyLoss), used in training only",
+        }
+    ]
     assert imported["reference_epoch"] == 7 and imported["bandwidths"] == [0.2, 1.7, 3.2]
     assert card.architecture["grid"]["convention"] == "reference"
     points = scan(0)
@@ -197,19 +199,62 @@ def test_unsafe_pickle_is_refused(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_bad_keys_are_listed(tmp_path):
-    ref = randomize(DSNetReference(4), seed=5)
-    state = spconv1_state(ref.state_dict())
-    state["backbone.extra.weight"] = torch.zeros(3)
-    del state["backbone.upBlock1.bn2.running_var"]
-    state["sem_head.logits.weight"] = state["sem_head.logits.weight"][..., :5]
+def small_state(seed: int) -> dict[str, torch.Tensor]:
+    return spconv1_state(randomize(DSNetReference(4), seed=seed).state_dict())
+
+
+def refusal(state: dict, tmp_path: Path, kind: str = "dsnet") -> str:
     torch.save({"epoch": 1, "model_state": state}, tmp_path / "bad.pth")
     with pytest.raises(CheckpointImportError) as err:
-        import_checkpoint(tmp_path / "bad.pth", tmp_path / "out", "dsnet")
+        import_checkpoint(tmp_path / "bad.pth", tmp_path / "out", kind)
+    assert not (tmp_path / "out").exists()
     msg = str(err.value)
-    assert "bad.pth" in msg and "unknown keys (1): backbone.extra.weight" in msg
-    assert "missing keys (1): backbone.up.1.c2.bn.running_var" in msg
+    assert msg.startswith(f"{tmp_path / 'bad.pth'}: ") and "\n" not in msg
+    return msg
+
+
+def test_bad_keys_are_listed(tmp_path):
+    state = small_state(5)
+    state["backbone.extra.weight"] = torch.zeros(3)
+    state["sem_loss.pos_weight"] = torch.ones(20)  # a loss buffer the reference does not register
+    del state["backbone.upBlock1.bn2.running_var"]
+    del state["ins_head.offset_linear.weight"]
+    state["sem_head.logits.weight"] = state["sem_head.logits.weight"][..., :5]
+    msg = refusal(state, tmp_path)
+    assert "does not match the dsnet reference network" in msg
+    assert "unknown keys (2): backbone.extra.weight, sem_loss.pos_weight" in msg
+    assert "missing keys (2): backbone.upBlock1.bn2.running_var, ins_head.offset_linear.weight" in msg
     assert "mis-shaped keys (1): sem_head.logits.weight" in msg
+
+
+def test_a_training_buffer_is_recognised_by_its_shape_too(tmp_path):
+    state = small_state(6)
+    state["sem_loss.weight"] = torch.ones(19)
+    msg = refusal(state, tmp_path)
+    assert msg.endswith(
+        "mis-shaped keys (1): sem_loss.weight (19,) (expected (20,): the class weights of the semantic "
+        "loss (CrossEntropyLoss))"
+    )
+    del state["sem_loss.weight"]  # a file without it (a re-saved network) imports
+    torch.save({"model_state": state}, tmp_path / "ok.pth")
+    card = import_checkpoint(tmp_path / "ok.pth", tmp_path / "ok", "dsnet")
+    assert card.training_data["imported"]["dropped"]["training_buffers"] == []
+
+
+def test_non_finite_weights_are_refused(tmp_path):
+    state = {
+        k: v.float().fill_(float("nan")) if v.is_floating_point() else v for k, v in small_state(7).items()
+    }
+    msg = refusal(state, tmp_path)
+    assert "NaN or infinite weights in keys (" in msg
+    first = [k for k, v in state.items() if v.is_floating_point() and k != "sem_loss.weight"][:12]
+    assert msg.endswith(f"): {', '.join(first)} …")
+    state = small_state(7)
+    state["ins_head.bn2.running_var"][3] = float("inf")
+    state["sem_loss.weight"][0] = float("nan")  # dropped, not used: not a reason to refuse
+    assert refusal(state, tmp_path).endswith(
+        ": NaN or infinite weights in keys (1): ins_head.bn2.running_var"
+    )
 
 
 def test_semantic_only_file_as_dsnet_is_refused_with_a_hint(tmp_path):
@@ -248,7 +293,7 @@ def test_numpy_scalars_of_old_pickles_are_allowed(tmp_path):
     """The reference's other_state may hold numpy scalars, pickled under numpy 1.x's module name."""
     import io
 
-    from dsnet_core.model.reference_convert import load_reference_file
+    from dsnet_core.model.reference_file import load_reference_file
 
     buf = io.BytesIO()
     obj = {"epoch": 3, "model_state": {"a": torch.ones(2)}, "other_state": {"best_pq": np.float64(0.5)}}

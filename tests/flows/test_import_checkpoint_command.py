@@ -68,7 +68,9 @@ def test_a_cylinder3d_file_prints_semantics_only_and_no_dropped_buffers(tmp_path
     lines = res.output.splitlines()
     assert lines[1].endswith(")") and "epoch" not in lines[1]  # a bare state dict has none
     assert lines[2] == "  kind: cylinder3d (semantics only)" and "  dropped buffers: none" in lines
-    assert lines[-1].startswith("semantics only: train the instance head with dsnet train dsnet DATA --init-from")
+    assert lines[-1].startswith(
+        "semantics only: train the instance head with dsnet train dsnet DATA --init-from"
+    )
 
 
 @pytest.mark.parametrize(

@@ -142,7 +142,7 @@ def train_steps(preset: str, log: Path, device: torch.device, amp: str, steps: i
         times.append(now - last[0])
         last[0] = now
 
-    trainer._train_epoch("semantic", 0, trainer._optimizer("semantic"), on_step)
+    trainer.train_epoch("semantic", 0, trainer.optimizer("semantic"), on_step)
     peak = torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else float("nan")
     return statistics.median(times[1:] or times), peak
 

@@ -8,8 +8,9 @@ prior each step sees is ground truth corrupted realistically (:mod:`dsnet_core.t
 segment-level class confusions drawn from the starting model's confusion matrix on the validation
 data, scaled per sample between clean and harsher, plus blob errors at class boundaries.
 
-Checkpoints every epoch (weights, card, optimiser state, committed together); ``resume``
-continues after the last completed epoch with the same per-epoch seeds.
+Checkpoints every epoch (weights, card, optimiser state, committed together: the shared
+:class:`~dsnet_core.train.skeleton.TrainerSkeleton`); ``resume`` continues after the last completed
+epoch with the same per-epoch seeds.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from __future__ import annotations
 import logging
 import math
 import shutil
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -28,17 +28,17 @@ from dsnet_core.errors import ConfigError
 from dsnet_core.io.reader import LogReader
 from dsnet_core.labels import LabelMap, class_map_of
 from dsnet_core.model.bundle import SHIFT_WEIGHTS
-from dsnet_core.model.checkpoint import CARD, ModelCard, code_version, load_checkpoint, save_checkpoint
+from dsnet_core.model.checkpoint import ModelCard, code_version, load_checkpoint, save_checkpoint
 from dsnet_core.model.dpls import dpls_config, init_from_semantic, is_dpls, one_hot
 from dsnet_core.model.losses import instance_centres
 from dsnet_core.model.network import DSNet
-from dsnet_core.train import commit
 from dsnet_core.train.data import augment, class_counts, data_fingerprint, load_sample, volume_refs
 from dsnet_core.train.prior_noise import PriorNoise, corrupt_prior, normalise_confusion
-from dsnet_core.train.state import load_train_state, save_train_state
+from dsnet_core.train.skeleton import TrainerSkeleton, prepare_out
 
 log = logging.getLogger(__name__)
 STAGE = "dpls"
+METRIC_COLUMNS = ("epoch", "lr", "train_loss", "val_offset_l1_clean", "val_offset_l1_corrupted", "seconds")
 
 
 @dataclass
@@ -84,7 +84,7 @@ def centre_loss(offsets, xyz, centres, valid, delta: float) -> torch.Tensor:
     return torch.nn.functional.huber_loss(pred, centres[valid], delta=delta, reduction="none").sum(1).mean()
 
 
-class DplsTrainer:
+class DplsTrainer(TrainerSkeleton):
     """Trains a D-PLS instance network.
 
     Args:
@@ -118,13 +118,7 @@ class DplsTrainer:
         self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
         if not self.train_vols:
             raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
-        commit.recover(self.out)
-        exists = (self.out / CARD).is_file()
-        if exists and not resume:
-            raise ConfigError(
-                f"{self.out} already holds a checkpoint: pass --resume, or choose another --out"
-            )
-        if exists:
+        if prepare_out(self.out, resume):
             self.model, self.card = load_checkpoint(self.out, self.device, expect_label_map=label_map)
             if not is_dpls(self.model.config):
                 raise ConfigError(
@@ -147,6 +141,9 @@ class DplsTrainer:
         measured = confusion is None
         if measured:
             confusion = measure_confusion(source, self.val_reader, self.val_vols, label_map, self.device)
+        # the corruption draws from the matrix as the card records it, so a resumed run (which reads
+        # it back from the card) corrupts exactly as the uninterrupted one
+        confusion = np.round(np.asarray(confusion, np.float64), 6)
         self.out.mkdir(parents=True, exist_ok=True)
         if (Path(init_from) / SHIFT_WEIGHTS).is_file():  # its features start as the parent's
             shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
@@ -167,7 +164,7 @@ class DplsTrainer:
                     "fresh_parameters": fresh,
                 },
                 "prior_noise": {
-                    "confusion": np.round(confusion, 6).tolist(),
+                    "confusion": confusion.tolist(),
                     "confusion_source": "init_from on the validation volumes" if measured else "given",
                 },
             },
@@ -176,29 +173,29 @@ class DplsTrainer:
         )
         return model, confusion
 
-    def run(self, on_step=None) -> ModelCard:
-        """Train every pending epoch; returns the final card."""
-        opt = torch.optim.Adam(self.model.parameters(), lr=self.cfg.lr)
-        done = self.card.epochs.get(STAGE, 0)
-        if load_train_state(self.out, opt, {"stage": STAGE, "epochs": done}):
-            log.info("restored optimiser state of epoch %d", done)
-        if done == 0 and not self.card.metrics:
-            self.card.metrics.append({"stage": STAGE, "epoch": 0, **self.validate()})
-        for epoch in range(done, self.cfg.epochs):
-            t0 = time.perf_counter()
-            for group in opt.param_groups:
-                group["lr"] = self.cfg.epoch_lr(epoch)
-            loss = self._train_epoch(epoch, opt, on_step)
-            record = {"stage": STAGE, "epoch": epoch + 1, "train_loss": loss, **self.validate()}
-            record["lr"] = self.cfg.epoch_lr(epoch)
-            record["seconds"] = round(time.perf_counter() - t0, 2)
-            self.card.metrics.append(record)
-            self.card.epochs[STAGE] = epoch + 1
-            self._save(epoch + 1, opt)
-            log.info("dpls epoch %d: loss %.4f, %s", epoch + 1, loss, record)
-        return self.card
+    # -- the skeleton's hooks ---------------------------------------------------------------
+    stage_names = (STAGE,)
+    metric_columns = METRIC_COLUMNS
 
-    def _train_epoch(self, epoch: int, opt, on_step) -> float:
+    def epochs_of(self, stage: str) -> int:
+        return self.cfg.epochs
+
+    def epoch_lr(self, stage: str, epoch: int, total: int) -> float:
+        return self.cfg.epoch_lr(epoch)
+
+    def optimizer(self, stage: str) -> torch.optim.Optimizer:
+        return torch.optim.Adam(self.model.parameters(), lr=self.cfg.lr)
+
+    def before_stage(self, stage: str, done: int) -> None:
+        if done == 0 and not self.card.metrics:  # the starting weights' scores, as epoch 0
+            self.card.metrics.append({"stage": STAGE, "epoch": 0, **self.validate()})
+
+    def write_checkpoint(self, staging: Path, stage: str, extra: dict) -> None:
+        if (self.out / SHIFT_WEIGHTS).is_file():
+            shutil.copyfile(self.out / SHIFT_WEIGHTS, staging / SHIFT_WEIGHTS)
+        save_checkpoint(staging, self.model, self.card)
+
+    def train_epoch(self, stage: str, epoch: int, opt, on_step=None, net=None) -> float:
         rng = np.random.default_rng([self.cfg.seed, 7, epoch])
         torch.manual_seed(int(rng.integers(2**31)))
         order = rng.permutation(len(self.train_vols))
@@ -233,7 +230,7 @@ class DplsTrainer:
         centres = instance_centres(xyz, torch.from_numpy(inst).to(self.device), valid)
         return centre_loss(out.offsets, xyz, centres, valid, self.cfg.huber_delta)
 
-    def validate(self) -> dict:
+    def validate(self, stage: str | None = None) -> dict:
         """Mean L1 centre error (metres) over thing points of the validation volumes, with the clean
         ground-truth prior and with a corrupted one (seeded, the same every epoch)."""
         self.model.eval()
@@ -256,30 +253,6 @@ class DplsTrainer:
                     sums[key] += float((out.offsets[valid] - target).abs().sum())
                 n += int(valid.sum())
         return {f"val_offset_l1_{k}": v / n if n else float("nan") for k, v in sums.items()}
-
-    def _save(self, epochs_done: int, opt) -> None:
-        staging = commit.begin(self.out)
-        save_train_state(staging, opt, {"stage": STAGE, "epochs": epochs_done})
-        if (self.out / SHIFT_WEIGHTS).is_file():
-            shutil.copyfile(self.out / SHIFT_WEIGHTS, staging / SHIFT_WEIGHTS)
-        save_checkpoint(staging, self.model, self.card)
-        write_metrics_csv(staging, self.card.metrics)
-        commit.commit(self.out)
-
-
-METRIC_COLUMNS = ("epoch", "lr", "train_loss", "val_offset_l1_clean", "val_offset_l1_corrupted", "seconds")
-
-
-def write_metrics_csv(out: Path, metrics: list[dict]) -> None:
-    """``metrics.json`` (the records) and ``metrics.csv`` (:data:`METRIC_COLUMNS`) beside the checkpoint."""
-    import csv
-    import json
-
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    with open(out / "metrics.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(metrics)
 
 
 def measure_confusion(model: DSNet, reader: LogReader, volumes, label_map: LabelMap, device) -> np.ndarray:

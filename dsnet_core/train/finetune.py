@@ -84,7 +84,7 @@ def early_stop(trainer: Trainer, stage: str, epoch: int, total: int) -> bool:
         "score": name,
         "value": scores[best],
     }
-    trainer._save(stage, epoch, None)  # weights, card and metrics land together
+    trainer.save(stage, epoch, None)  # weights, card and metrics land together
     if trainer.dist.is_main:
         best_file.unlink(missing_ok=True)
     return epoch < total

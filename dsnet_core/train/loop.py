@@ -11,13 +11,10 @@ and rank 0 alone writes the checkpoint while the others wait.
 
 from __future__ import annotations
 
-import csv
-import json
 import logging
 import math
 import shutil
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -29,7 +26,6 @@ from dsnet_core.io.reader import LogReader
 from dsnet_core.labels import LabelMap
 from dsnet_core.model.bundle import SHIFT_WEIGHTS, load_shift_weights, save_shift_weights
 from dsnet_core.model.checkpoint import (
-    CARD,
     ModelCard,
     class_map_of,
     code_version,
@@ -46,7 +42,7 @@ from dsnet_core.model.losses import (
 )
 from dsnet_core.model.network import DSNet, NetOutput, lift_model
 from dsnet_core.model.presets import ModelConfig
-from dsnet_core.train import commit, distributed
+from dsnet_core.train import distributed
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
 from dsnet_core.train.distributed import shard
 from dsnet_core.train.finetune import early_stop, holdout_split, stage_start, volume_name
@@ -58,10 +54,20 @@ from dsnet_core.train.shifting import (
     shift_samples,
     train_shift,
 )
-from dsnet_core.train.state import load_train_state, save_train_state
+from dsnet_core.train.skeleton import StepCallback, TrainerSkeleton, prepare_out
 from dsnet_core.train.stream import StreamLog
 
 log = logging.getLogger(__name__)
+METRIC_COLUMNS = (
+    "stage",
+    "epoch",
+    "lr",
+    "train_loss",
+    "val_miou",
+    "val_offset_l1",
+    "val_shift_l1",
+    "seconds",
+)
 STAGES = ("semantic", "offset", "joint", "shift")
 """Stages in the order they run. ``joint`` (4D-DS-Net's volume fine-tune) trains the point MLP,
 U-Net, semantic and instance heads together on the sum of both losses; a plain run leaves it at 0
@@ -145,14 +151,16 @@ class TrainConfig:
         return [self.stage]
 
 
-StepCallback = Callable[[str, int, int, int, float], None]
-
 AMP_DTYPES = {"off": None, "bf16": torch.bfloat16, "fp16": torch.float16}
 """``TrainConfig.amp`` → the autocast dtype."""
 
 
-class Trainer:
-    """Trains a :class:`DSNet` on volumes read through a :class:`LogReader`.
+class Trainer(TrainerSkeleton):
+    stage_names = STAGES
+    metric_columns = METRIC_COLUMNS
+
+    """Trains a :class:`DSNet` on volumes read through a :class:`LogReader` (the shared loop,
+    checkpoints and resume: :class:`~dsnet_core.train.skeleton.TrainerSkeleton`).
 
     Under torchrun (``WORLD_SIZE`` > 1) it joins the process group (:func:`distributed.setup`) and
     trains data-parallel; the caller ends the group (:func:`distributed.teardown`).
@@ -202,13 +210,7 @@ class Trainer:
             val_sequences = sorted({v[-1].sequence for v in self.val_vols})
         else:
             self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
-        if self.dist.from_main(lambda: commit.recover(self.out)):
-            log.info("%s: finished or discarded the epoch a kill interrupted", self.out)
-        exists = (self.out / CARD).is_file()
-        if exists and not resume:
-            raise ConfigError(
-                f"{self.out} already holds a checkpoint: pass --resume, or choose another --out"
-            )
+        exists = prepare_out(self.out, resume, self.dist)
         if resume and exists:
             self.model, self.card = load_checkpoint(
                 self.out, self.device, expect_config=model_config, expect_label_map=label_map
@@ -277,47 +279,31 @@ class Trainer:
         self.card.code_version = code_version()  # the code that trains now (a resumed card keeps the last)
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 
-    # -- the schedule ----------------------------------------------------------------------
-    def run(self, on_step: StepCallback | None = None) -> ModelCard:
-        """Train every pending epoch of every stage; returns the final model card."""
-        for stage in self.stages:
-            done, total = self._valid_epochs(stage), self.cfg.epochs.get(stage, 0)
-            if done >= total or self._stopped_early(stage, done):
-                continue
-            if stage == "shift":
-                self._run_shift(done, total)
-            else:
-                self._run_stage(stage, done, total, on_step)
-        return self.card
+    # -- the schedule (the skeleton's hooks) ------------------------------------------------
+    def schedule(self) -> list[str]:
+        return self.stages
 
-    def _run_stage(self, stage: str, done: int, total: int, on_step: StepCallback | None) -> None:
-        """Train epochs ``done`` … ``total − 1`` of the semantic, offset or joint stage."""
-        opt = self._optimizer(stage)
-        net = self.dist.wrap(self.model, self.device)  # after _optimizer chose the trained parameters
-        if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
-            log.info("restored optimiser state of %s epoch %d", stage, done)
+    def epochs_of(self, stage: str) -> int:
+        return self.cfg.epochs.get(stage, 0)
+
+    def epoch_lr(self, stage: str, epoch: int, total: int) -> float:
+        return self.cfg.epoch_lr(epoch, total)
+
+    def run_stage(self, stage: str, done: int, total: int, on_step: StepCallback | None) -> None:
+        """The shifting MLPs train their own way; the other stages are the skeleton's loop."""
+        if stage == "shift":
+            self._run_shift(done, total)
+        else:
+            super().run_stage(stage, done, total, on_step)
+
+    def before_stage(self, stage: str, done: int) -> None:
         if self.cfg.patience and done == 0:
             stage_start(self, stage)
-        for epoch in range(done, total):
-            t0 = time.perf_counter()
-            for group in opt.param_groups:
-                group["lr"] = self.cfg.epoch_lr(epoch, total)
-            loss = self._train_epoch(stage, epoch, opt, on_step, net)
-            record = {"stage": stage, "epoch": epoch + 1, "train_loss": loss, **self.validate()}
-            record["seconds"] = round(time.perf_counter() - t0, 2)
-            record["lr"] = self.cfg.epoch_lr(epoch, total)
-            self.card.metrics.append(record)
-            self.card.epochs[stage] = epoch + 1
-            self._save(stage, epoch + 1, opt)
-            log.info("%s epoch %d: loss %.4f, val mIoU %.4f", stage, epoch + 1, loss, record["val_miou"])
-            if self.cfg.patience and early_stop(self, stage, epoch + 1, total):
-                break
 
-    def _stopped_early(self, stage: str, done: int) -> bool:
-        stop = self.card.training_data.get("early_stop", {}).get(stage)
-        return bool(stop) and stop.get("stopped_after") == done
+    def after_epoch(self, stage: str, epoch: int, total: int) -> bool:
+        return bool(self.cfg.patience) and early_stop(self, stage, epoch, total)
 
-    def _valid_epochs(self, stage: str) -> int:
+    def valid_epochs(self, stage: str) -> int:
         """Completed epochs of ``stage`` that still hold: those recorded after the last epoch of an
         earlier stage. Training the backbone again (more semantic epochs after the instance head or
         shifting were trained) invalidates what was trained on the old features; the card's count
@@ -394,17 +380,9 @@ class Trainer:
             errors = np.concatenate(self.dist.all_gather(shift_errors(module, val, self.device)))
             record["val_shift_l1"] = float(np.mean(errors)) if len(errors) else float("nan")
             record["seconds"] = round(time.perf_counter() - t0, 2)
-            self.card.metrics.append(record)
-            self.card.epochs["shift"] = epoch + 1
-            self._save("shift", epoch + 1, None, shift=module)
-            log.info(
-                "shift epoch %d: loss %.4f, val shift L1 %.4f",
-                epoch + 1,
-                record["train_loss"],
-                record["val_shift_l1"],
-            )
+            self.end_epoch("shift", epoch + 1, record, None, shift=module)
 
-    def _optimizer(self, stage: str) -> torch.optim.Optimizer:
+    def optimizer(self, stage: str) -> torch.optim.Optimizer:
         """Adam over the stage's parameters: offset the instance head, semantic everything else
         (or only the semantic head with ``freeze_backbone``), joint both."""
         for name, p in self.model.named_parameters():
@@ -423,7 +401,7 @@ class Trainer:
             self.model.point_encoder.eval()
             self.model.backbone.eval()
 
-    def _train_epoch(
+    def train_epoch(
         self,
         stage: str,
         epoch: int,
@@ -510,7 +488,7 @@ class Trainer:
         return offset_loss(out.offsets, xyz, centres, valid)
 
     # -- validation and files --------------------------------------------------------------
-    def validate(self) -> dict:
+    def validate(self, stage: str | None = None) -> dict:
         """Point mIoU (classes 1..C-1) and the eq. 1 offset error (metres) on the validation volumes.
 
         Under torchrun each rank scores its part of the volumes; the confusion matrices are summed
@@ -545,44 +523,16 @@ class Trainer:
             "val_iou": {names[c]: float(iou[c]) for c in range(1, len(iou)) if np.isfinite(iou[c])},
         }
 
-    def _save(
-        self,
-        stage: str,
-        epochs_done: int,
-        opt: torch.optim.Optimizer | None,
-        shift: torch.nn.Module | None = None,
-    ) -> None:
-        """Write the epoch's files together (:mod:`dsnet_core.train.commit`): the optimiser state
-        (or the shifting weights), the weights, the card and the metrics. Rank 0 writes; the other
-        ranks wait until the files are in place."""
-        if self.dist.is_main:
-            self._write(stage, epochs_done, opt, shift)
-        self.dist.barrier()
-
-    def _write(
-        self, stage: str, epochs_done: int, opt: torch.optim.Optimizer | None, shift: torch.nn.Module | None
-    ) -> None:
-        staging = commit.begin(self.out)
-        if opt is not None:
-            save_train_state(staging, opt, {"stage": stage, "epochs": epochs_done})
+    def write_checkpoint(self, staging: Path, stage: str, extra: dict) -> None:
+        """The weights and card, with the shifting weights: the epoch's new ones (``extra["shift"]``)
+        or the folder's current ones (the card covers the shifting weights it sits with)."""
+        shift = extra.get("shift")
         if shift is not None:
             save_shift_weights(staging, shift)
-        elif (self.out / SHIFT_WEIGHTS).is_file():  # the card covers the shifting weights it sits with
+        elif (self.out / SHIFT_WEIGHTS).is_file():
             shutil.copyfile(self.out / SHIFT_WEIGHTS, staging / SHIFT_WEIGHTS)
         save_checkpoint(staging, self.model, self.card)
-        write_metrics_table(staging, self.card.metrics)
-        commit.commit(self.out)
 
 
 def _with_points(s: Sample, points: np.ndarray) -> Sample:
     return Sample(points, s.sem, s.inst, s.thing, s.frame_index, s.name)
-
-
-def write_metrics_table(out: Path, metrics: list[dict]) -> None:
-    """``metrics.json`` (full records) and ``metrics.csv`` (scalars) beside the checkpoint."""
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    cols = ["stage", "epoch", "lr", "train_loss", "val_miou", "val_offset_l1", "val_shift_l1", "seconds"]
-    with open(out / "metrics.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(metrics)

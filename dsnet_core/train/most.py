@@ -1,15 +1,13 @@
 """MOST's two-stage training (paper, implementation details): ``detect`` trains the network on
 detection, segmentation and velocity (eq. 1, 2, 4); ``member`` trains PointSegMLP (eq. 3) with
 everything else frozen. Checkpoints every epoch; a killed run resumes from the last completed
-epoch with the optimiser state of that epoch (like :class:`dsnet_core.train.loop.Trainer`).
+epoch with the optimiser state of that epoch, every epoch's files committed together (the shared
+:class:`~dsnet_core.train.skeleton.TrainerSkeleton`).
 """
 
 from __future__ import annotations
 
-import csv
-import json
 import logging
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -19,7 +17,7 @@ import torch
 from dsnet_core.errors import ConfigError
 from dsnet_core.io.reader import LogReader
 from dsnet_core.labels import LabelMap
-from dsnet_core.model.checkpoint import CARD, ModelCard, class_map_of, code_version, load_checkpoint
+from dsnet_core.model.checkpoint import ModelCard, class_map_of, code_version, load_checkpoint
 from dsnet_core.model.losses import class_weights
 from dsnet_core.most.checkpoint import load_most_checkpoint, save_most_checkpoint
 from dsnet_core.most.config import DEFAULT_SCANS, MostConfig
@@ -36,10 +34,25 @@ from dsnet_core.train.most_steps import (
     jittered_detections,
     member_pairs,
 )
-from dsnet_core.train.state import load_train_state, save_train_state
+from dsnet_core.train.skeleton import TrainerSkeleton, prepare_out
 
 log = logging.getLogger(__name__)
 MOST_STAGES = ("detect", "member")
+METRIC_COLUMNS = (
+    "stage",
+    "epoch",
+    "lr",
+    "train_loss",
+    "val_miou",
+    "val_det_precision",
+    "val_det_recall",
+    "val_centre_err",
+    "val_extent_l1",
+    "val_velocity_l1",
+    "val_member_acc",
+    "val_member_bce",
+    "seconds",
+)
 
 
 @dataclass
@@ -83,7 +96,7 @@ class MostTrainConfig:
         return floor + 0.5 * (self.lr - floor) * (1.0 + np.cos(np.pi * epoch / (total - 1)))
 
 
-class MostTrainer:
+class MostTrainer(TrainerSkeleton):
     """Trains a :class:`MostNet`.
 
     Args:
@@ -116,12 +129,7 @@ class MostTrainer:
             raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
         self.train_targets = SequenceTargets(reader, sequences, label_map, train_config.min_points)
         self.val_targets = SequenceTargets(val_reader, val_sequences, label_map, train_config.min_points)
-        exists = (self.out / CARD).is_file()
-        if exists and not resume:
-            raise ConfigError(
-                f"{self.out} already holds a checkpoint: pass --resume, or choose another --out"
-            )
-        if exists:
+        if prepare_out(self.out, resume):
             self.model, self.card = load_most_checkpoint(self.out, self.device, expect_label_map=label_map)
             log.info("resuming from %s (epochs done: %s)", self.out, self.card.epochs)
         else:
@@ -158,41 +166,23 @@ class MostTrainer:
         self.card.code_version = code_version()
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 
-    # -- schedule --------------------------------------------------------------------------
-    def run(self, on_step=None) -> ModelCard:
-        """Train every pending epoch of every stage; returns the final card. ``on_step(stage, epoch,
-        step, steps, loss)`` after every step."""
-        for stage in self.cfg.stages():
-            done, total = self._valid_epochs(stage), self.cfg.epochs.get(stage, 0)
-            if done >= total:
-                continue
-            opt = self._optimizer(stage)
-            if load_train_state(self.out, opt, {"stage": stage, "epochs": done}):
-                log.info("restored optimiser state of %s epoch %d", stage, done)
-            for epoch in range(done, total):
-                t0 = time.perf_counter()
-                for group in opt.param_groups:
-                    group["lr"] = self.cfg.epoch_lr(epoch, total)
-                loss = self._train_epoch(stage, epoch, opt, on_step)
-                record = {"stage": stage, "epoch": epoch + 1, "train_loss": loss, **self.validate(stage)}
-                record["seconds"] = round(time.perf_counter() - t0, 2)
-                record["lr"] = self.cfg.epoch_lr(epoch, total)
-                self.card.metrics.append(record)
-                self.card.epochs[stage] = epoch + 1
-                self.out.mkdir(parents=True, exist_ok=True)
-                save_train_state(self.out, opt, {"stage": stage, "epochs": epoch + 1})
-                save_most_checkpoint(self.out, self.model, self.card)
-                write_most_metrics(self.out, self.card.metrics)
-                log.info(
-                    "%s epoch %d: loss %.4f %s",
-                    stage,
-                    epoch + 1,
-                    loss,
-                    {k: v for k, v in record.items() if k.startswith("val_") and not isinstance(v, dict)},
-                )
-        return self.card
+    # -- the skeleton's hooks ---------------------------------------------------------------
+    stage_names = MOST_STAGES
+    metric_columns = METRIC_COLUMNS
 
-    def _valid_epochs(self, stage: str) -> int:
+    def schedule(self) -> list[str]:
+        return self.cfg.stages()
+
+    def epochs_of(self, stage: str) -> int:
+        return self.cfg.epochs.get(stage, 0)
+
+    def epoch_lr(self, stage: str, epoch: int, total: int) -> float:
+        return float(self.cfg.epoch_lr(epoch, total))
+
+    def write_checkpoint(self, staging: Path, stage: str, extra: dict) -> None:
+        save_most_checkpoint(staging, self.model, self.card)
+
+    def valid_epochs(self, stage: str) -> int:
         """``member`` epochs recorded before the last ``detect`` epoch were trained on older features."""
         recorded = self.card.epochs.get(stage, 0)
         if stage == "detect":
@@ -204,12 +194,14 @@ class MostTrainer:
             self.card.epochs[stage] = valid
         return min(valid, recorded)
 
-    def _optimizer(self, stage: str) -> torch.optim.Optimizer:
+    def optimizer(self, stage: str) -> torch.optim.Optimizer:
         for name, p in self.model.named_parameters():
             p.requires_grad_(name.startswith("pointseg.") == (stage == "member"))
         return torch.optim.Adam([p for p in self.model.parameters() if p.requires_grad], lr=self.cfg.lr)
 
-    def _train_epoch(self, stage: str, epoch: int, opt: torch.optim.Optimizer, on_step=None) -> float:
+    def train_epoch(
+        self, stage: str, epoch: int, opt: torch.optim.Optimizer, on_step=None, net=None
+    ) -> float:
         rng = np.random.default_rng([self.cfg.seed, MOST_STAGES.index(stage), epoch])
         torch.manual_seed(int(rng.integers(2**31)))
         order = rng.permutation(len(self.train_items))
@@ -299,29 +291,3 @@ class MostTrainer:
 
 def _items(reader: LogReader, sequences: list[str]) -> list[tuple[str, int]]:
     return [(seq, f.index) for seq in sequences for f in reader.frames(seq) if f.label_path is not None]
-
-
-METRIC_COLUMNS = [
-    "stage",
-    "epoch",
-    "lr",
-    "train_loss",
-    "val_miou",
-    "val_det_precision",
-    "val_det_recall",
-    "val_centre_err",
-    "val_extent_l1",
-    "val_velocity_l1",
-    "val_member_acc",
-    "val_member_bce",
-    "seconds",
-]
-
-
-def write_most_metrics(out: Path, metrics: list[dict]) -> None:
-    """``metrics.json`` (full records) and ``metrics.csv`` (scalars) beside the checkpoint."""
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    with open(out / "metrics.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(metrics)

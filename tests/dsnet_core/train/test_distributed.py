@@ -160,7 +160,7 @@ def test_two_ranks_equal_the_reference_computed_by_hand(ddp_run, tmp_path):
     log, _, report, _ = ddp_run
     t = trainer(log, tmp_path / "ref", stage="semantic", epochs={"semantic": 1})  # same seed: same start
     reader = SemanticKittiReader(log)
-    opt = t._optimizer("semantic")
+    opt = t.optimizer("semantic")
     for group in opt.param_groups:
         group["lr"] = t.cfg.epoch_lr(0, 1)
     rng = np.random.default_rng([t.cfg.seed, STAGES.index("semantic"), 0])

@@ -64,7 +64,7 @@ class RefineConfig(StageConfig):
     moving_extent: float = Field(0.5, ge=0)
     min_static_frames: int = Field(2, ge=0)
     join_gap: int = Field(5, ge=0)
-    join_distance: float = Field(2.0, ge=0)
+    join_distance: float = Field(1.0, ge=0)
     velocity_frames: int = Field(5, ge=1)
     ground_prior: bool = False
     ground_max_confidence: float = Field(0.6, ge=0, le=1)

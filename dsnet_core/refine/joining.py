@@ -35,15 +35,35 @@ def _end_state(s: TrackSummary, t: int, n: int, at_end: bool) -> tuple[float, np
     return float(time[k]), centre[k], fit_velocity(time[sl], centre[sl])
 
 
+def _states(s: TrackSummary, n: int, at_end: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every track's :func:`_end_state`: times ``(T,)``, centres and velocities ``(T, 3)``."""
+    states = [_end_state(s, t, n, at_end) for t in range(s.ids.size)]
+    if not states:
+        return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+    return (
+        np.array([x[0] for x in states]),
+        np.stack([x[1] for x in states]),
+        np.stack([x[2] for x in states]),
+    )
+
+
+def _costs(end: tuple, start: tuple) -> np.ndarray:
+    """Mean miss (metres) of each pair's extrapolations: ``end`` of the earlier tracks and ``start``
+    of the later ones, as (time, centre, velocity) arrays that broadcast against each other."""
+    (ta, ca, va), (tb, cb, vb) = end, start
+    dt = (tb - ta)[..., None]
+    fwd = ca + va * dt - cb
+    bwd = cb - vb * dt - ca
+    norm = lambda d: np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])  # noqa: E731
+    return 0.5 * (norm(fwd) + norm(bwd))
+
+
 def join_cost(s: TrackSummary, a: int, b: int, velocity_frames: int) -> float:
     """Mean distance (metres) between each track's extrapolation across the gap and the other's
     centre, for track ``a`` ending before track ``b`` starts (indices into ``s.ids``)."""
-    ta, ca, va = _end_state(s, a, velocity_frames, at_end=True)
-    tb, cb, vb = _end_state(s, b, velocity_frames, at_end=False)
-    dt = tb - ta
-    forward = ca + va * dt
-    backward = cb - vb * dt
-    return 0.5 * (float(np.linalg.norm(forward - cb)) + float(np.linalg.norm(backward - ca)))
+    end = _end_state(s, a, velocity_frames, at_end=True)
+    start = _end_state(s, b, velocity_frames, at_end=False)
+    return float(_costs(tuple(np.asarray(x) for x in end), tuple(np.asarray(x) for x in start)))
 
 
 def join_tracks(
@@ -70,16 +90,17 @@ def join_tracks(
     first, last = s.first, s.last
     order = np.argsort(first, kind="stable")
     firsts = first[order]
+    ends, starts = _states(s, velocity_frames, True), _states(s, velocity_frames, False)
     pairs: list[tuple[int, int, float]] = []
     for a in np.flatnonzero(eligible):
         lo = np.searchsorted(firsts, last[a] + 1, side="left")
         hi = np.searchsorted(firsts, last[a] + 1 + max_gap, side="right")
-        for b in order[lo:hi]:
-            if b == a or not eligible[b] or group[b] != group[a]:
-                continue
-            cost = join_cost(s, int(a), int(b), velocity_frames)
-            if cost <= max_distance:
-                pairs.append((int(a), int(b), cost))
+        cand = order[lo:hi]
+        cand = cand[(cand != a) & eligible[cand] & (group[cand] == group[a])]
+        if cand.size == 0:
+            continue
+        cost = _costs(tuple(x[a] for x in ends), tuple(x[cand] for x in starts))
+        pairs += [(int(a), int(b), float(c)) for b, c in zip(cand, cost, strict=True) if c <= max_distance]
     if not pairs:
         return []
     rows = sorted({p[0] for p in pairs})

@@ -70,7 +70,7 @@ class TrackParams:
     moving_extent: float = 0.5
     min_static_frames: int = 2
     join_gap: int = 5
-    join_distance: float = 2.0
+    join_distance: float = 1.0
     velocity_frames: int = 5
 
     def __post_init__(self) -> None:

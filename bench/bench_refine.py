@@ -28,7 +28,10 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-VALIDATION = REPO.parent / "shared" / "validation"
+VALIDATION = next(
+    (p / "shared" / "validation" for p in REPO.parents if (p / "shared" / "validation").is_dir()),
+    REPO.parent / "shared" / "validation",
+)  # ../shared/validation beside the checkout (or beside a folder of worktrees)
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,13 @@ class TrackDecisions:
         pos = np.clip(np.searchsorted(self.ids, inst), 0, self.ids.size - 1)
         return np.where((inst > 0) & (self.ids[pos] == inst), pos, -1)
 
+    def gather(self, column: str, row: np.ndarray, fill) -> np.ndarray:
+        """``column`` at rows ``row`` (from :meth:`lookup`), ``fill`` where a row is -1."""
+        values = getattr(self, column)
+        if values.size == 0:
+            return np.full(row.shape, fill, dtype=values.dtype)
+        return np.where(row >= 0, values[np.maximum(row, 0)], fill)
+
     def confidences(self) -> Confidence:
         """The vote weights of hard labels."""
         return Confidence.from_mapping(dict(zip(self.ids.tolist(), self.confidence.tolist(), strict=True)))

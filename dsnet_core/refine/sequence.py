@@ -135,9 +135,9 @@ def apply_tracks(
     has = row >= 0
     sem, inst = frame.sem.copy(), frame.inst.copy()
     inst[has] = d.final_id[row[has]]
-    cls = np.where(has, d.class_id[np.maximum(row, 0)], -1)
+    cls = d.gather("class_id", row, -1)
     sem[cls >= 0] = cls[cls >= 0]
-    static = has & d.static[np.maximum(row, 0)]
+    static = d.gather("static", row, False)
     return sem, inst, static, (sem != frame.sem) | (inst != frame.inst)
 
 
@@ -196,7 +196,7 @@ def refine_block(
         if voting:
             voters = _voters(sem, inst, static, sets)
             weight = range_weights(frame, params.vote.range_ref)[voters]
-            weight = weight * plan.confidence.point_weights(inst[voters], frame.probs is None)
+            weight = weight * plan.confidence.point_weights(frame.inst[voters], frame.probs is None)
             probs = None if frame.probs is None else frame.probs[voters]
             votes.append(
                 frame_votes(g, grid.keys(world[voters]), sem[voters], probs, weight, sets.num_classes,
@@ -245,7 +245,7 @@ def _finish(
     d = plan.decisions
     joined = sum(1 for j in d.joins if d.first[d.lookup(np.asarray([j.later]))[0]] == frame.index)
     row = d.lookup(frame.inst)
-    dissolved = np.unique(frame.inst[(row >= 0) & d.dissolved[np.maximum(row, 0)]]).size
+    dissolved = np.unique(frame.inst[d.gather("dissolved", row, False)]).size
     change = frame_change(
         frame.index, (frame.sem, frame.inst), (sem, inst), p.by_track, by_static, by_ground, joined, dissolved
     )

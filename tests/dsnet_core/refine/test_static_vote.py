@@ -106,9 +106,9 @@ def test_a_frame_is_refined_the_same_whatever_block_it_is_in(blocks):
     whole = {r.index: r for r in refine_sequence(frames, scenes.SETS, params)}
     plan = plan_refinement(frames, scenes.SETS, params)
     for block in blocks:
-        loaded = []
+        loaded: list[int] = []
 
-        def load(i: int) -> FrameInput:
+        def load(i: int, loaded: list[int] = loaded) -> FrameInput:
             loaded.append(i)
             return frames[i]
 

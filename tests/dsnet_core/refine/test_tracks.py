@@ -119,7 +119,7 @@ def test_joins_are_one_to_one():
 
 
 def test_a_moving_car_passing_a_parked_one_keeps_its_class_and_id(street):
-    noisy, masks = scenes.add_static_noise(street, 0.2)
+    noisy, _ = scenes.add_static_noise(street, 0.2)
     noisy = [replace(n, sem=np.where(n.inst > 0, g.sem, n.sem)) for n, g in zip(noisy, street, strict=True)]
     plan = plan_refinement(noisy, scenes.SETS, RefineParams())
     d = plan.decisions
@@ -163,3 +163,20 @@ def test_the_plan_round_trips_through_json(street):
     assert back.to_dict() == plan.to_dict()
     assert back.frames == tuple(f.index for f in frames)
     assert back.confidence.weight.tolist() == [230, 102]
+
+
+def test_without_poses_only_the_track_classes_apply_and_without_tracks_only_the_vote(street):
+    noisy, _ = scenes.add_static_noise(street[:8], 0.2)
+    flipped = [
+        replace(f, sem=np.where(f.inst == 1, scenes.TRUCK, f.sem)) if f.index % 3 == 0 else f for f in noisy
+    ]
+    posed = [replace(f, pose=None) for f in flipped]
+    plan = plan_refinement(posed, scenes.SETS, RefineParams())
+    assert not plan.world and not plan.decisions.static.any() and plan.decisions.joins == ()
+    out = refine_sequence(posed, scenes.SETS, RefineParams())
+    assert all(o.change.by_static == 0 and o.change.by_track == int((f.inst == 1).sum()) * (f.index % 3 == 0)
+               for o, f in zip(out, posed, strict=True))  # fmt: skip
+    assert refine_sequence([], scenes.SETS, RefineParams()) == []
+    no_tracks = [replace(f, inst=np.zeros_like(f.inst)) for f in noisy]
+    out = refine_sequence(no_tracks, scenes.SETS, RefineParams())
+    assert all(o.change.by_track == 0 for o in out) and sum(o.change.by_static for o in out) > 0

@@ -39,6 +39,8 @@ class LabelMap:
         ignore: train ids not scored (``learning_ignore``; default: class 0).
         track_groups: groups of thing train ids that a tracker may associate with each other
             (YAML ``track_groups``); a thing class in no group forms a group of its own.
+        ground: stuff train ids of the ground surface (YAML ``ground``: road, sidewalk, terrain, ...),
+            the classes a ground segmentation's "ground" stands for; empty when the map says nothing.
     """
 
     name: str
@@ -54,6 +56,7 @@ class LabelMap:
     source: str = ""
     ignore: tuple[int, ...] = (0,)
     track_groups: tuple[tuple[int, ...], ...] = ()
+    ground: tuple[int, ...] = ()
 
     @property
     def num_classes(self) -> int:
@@ -241,6 +244,9 @@ def parse_label_map(data: dict, source: str = "<dict>") -> LabelMap:
     except (TypeError, ValueError, AttributeError) as exc:
         raise ConfigError(f"{source}: 'split', 'color_map' or 'min_points' is malformed: {exc}") from exc
     groups = _track_groups(data.get("track_groups") or [], things, source)
+    ground = _ids_in_range(data.get("ground") or [], n_train, source, "ground")
+    if set(ground) & set(things):
+        raise ConfigError(f"{source}: 'ground' names thing ids {sorted(set(ground) & set(things))}")
     return LabelMap(
         name=str(data.get("name", Path(source).stem)),
         labels=labels,
@@ -255,6 +261,7 @@ def parse_label_map(data: dict, source: str = "<dict>") -> LabelMap:
         source=source,
         ignore=_learning_ignore(data.get("learning_ignore"), n_train, source),
         track_groups=groups,
+        ground=ground,
     )
 
 

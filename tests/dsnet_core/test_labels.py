@@ -122,3 +122,28 @@ def test_track_groups(tmp_path):
             load_label_map(path)
     path.write_text(base)
     assert len(set(load_label_map(path).track_group_of().tolist())) == 4  # each class alone
+
+
+def test_ground_classes(tmp_path):
+    kitti, nusc = load_label_map("semantic-kitti"), load_label_map("panoptic-nuscenes")
+    assert [kitti.class_names[i] for i in kitti.ground] == [
+        "road",
+        "parking",
+        "sidewalk",
+        "other-ground",
+        "terrain",
+    ]
+    assert [nusc.class_names[i] for i in nusc.ground] == [
+        "driveable_surface",
+        "other_flat",
+        "sidewalk",
+        "terrain",
+    ]
+    base = "labels: {0: u, 10: car, 40: road}\nlearning_map: {0: 0, 10: 1, 40: 2}\nthings: [1]\n"
+    path = tmp_path / "m.yaml"
+    path.write_text(base)
+    assert load_label_map(path).ground == ()  # a map that says nothing of the ground
+    for ground, msg in (("[1]", "'ground' names thing ids \\[1\\]"), ("[5]", "'ground' has train id 5")):
+        path.write_text(base + f"ground: {ground}\n")
+        with pytest.raises(ConfigError, match=msg):
+            load_label_map(path)

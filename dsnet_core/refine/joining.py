@@ -1,0 +1,137 @@
+"""Tracks repaired in both directions: a track that ends and one that starts at most ``G`` frames
+later are the same object when each one's position, extrapolated across the gap with its own
+velocity (forwards from the end of the first, backwards from the start of the second), lands near
+the other's observed centre. Pairs are chosen one-to-one (an optimal assignment), only within a
+class group; a chain of joined tracks keeps the id of its earliest track."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from dsnet_core.refine.history import TrackSummary
+from dsnet_core.refine.motion import fit_velocity
+
+
+@dataclass(frozen=True)
+class Join:
+    """One repair: track ``later`` continues track ``earlier`` after ``gap`` frames unseen, with a
+    mean extrapolation error of ``distance`` metres."""
+
+    earlier: int
+    later: int
+    gap: int
+    distance: float
+
+
+def _end_state(s: TrackSummary, t: int, n: int, at_end: bool) -> tuple[float, np.ndarray, np.ndarray]:
+    """(time, centre, velocity) of track ``t`` at its end (or start), velocity from ``n`` sightings."""
+    r = s.rows(t)
+    time, centre = s.time[r], s.centre[r]
+    sl = slice(-n, None) if at_end else slice(0, n)
+    k = -1 if at_end else 0
+    return float(time[k]), centre[k], fit_velocity(time[sl], centre[sl])
+
+
+def _states(s: TrackSummary, n: int, at_end: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every track's :func:`_end_state`: times ``(T,)``, centres and velocities ``(T, 3)``."""
+    states = [_end_state(s, t, n, at_end) for t in range(s.ids.size)]
+    if not states:
+        return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+    return (
+        np.array([x[0] for x in states]),
+        np.stack([x[1] for x in states]),
+        np.stack([x[2] for x in states]),
+    )
+
+
+def _costs(end: tuple, start: tuple) -> np.ndarray:
+    """Mean miss (metres) of each pair's extrapolations: ``end`` of the earlier tracks and ``start``
+    of the later ones, as (time, centre, velocity) arrays that broadcast against each other."""
+    (ta, ca, va), (tb, cb, vb) = end, start
+    dt = (tb - ta)[..., None]
+    fwd = ca + va * dt - cb
+    bwd = cb - vb * dt - ca
+    norm = lambda d: np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])  # noqa: E731
+    return 0.5 * (norm(fwd) + norm(bwd))
+
+
+def join_cost(s: TrackSummary, a: int, b: int, velocity_frames: int) -> float:
+    """Mean distance (metres) between each track's extrapolation across the gap and the other's
+    centre, for track ``a`` ending before track ``b`` starts (indices into ``s.ids``)."""
+    end = _end_state(s, a, velocity_frames, at_end=True)
+    start = _end_state(s, b, velocity_frames, at_end=False)
+    return float(_costs(tuple(np.asarray(x) for x in end), tuple(np.asarray(x) for x in start)))
+
+
+def join_tracks(
+    s: TrackSummary,
+    eligible: np.ndarray,
+    group: np.ndarray,
+    max_gap: int,
+    max_distance: float,
+    velocity_frames: int = 5,
+) -> list[Join]:
+    """The joins of a sequence's tracks.
+
+    Args:
+        s: the tracks.
+        eligible: ``(T,) bool`` tracks that may be joined (not dissolved).
+        group: ``(T,) int64`` class group of each track; only tracks of one group are joined.
+        max_gap: G, the most frames without a sighting between the two.
+        max_distance: the largest accepted :func:`join_cost`, metres.
+        velocity_frames: sightings each end velocity is fitted to.
+
+    Returns:
+        The joins, sorted by the later track's first frame.
+    """
+    first, last = s.first, s.last
+    order = np.argsort(first, kind="stable")
+    firsts = first[order]
+    ends, starts = _states(s, velocity_frames, True), _states(s, velocity_frames, False)
+    pairs: list[tuple[int, int, float]] = []
+    for a in np.flatnonzero(eligible):
+        lo = np.searchsorted(firsts, last[a] + 1, side="left")
+        hi = np.searchsorted(firsts, last[a] + 1 + max_gap, side="right")
+        cand = order[lo:hi]
+        cand = cand[(cand != a) & eligible[cand] & (group[cand] == group[a])]
+        if cand.size == 0:
+            continue
+        cost = _costs(tuple(x[a] for x in ends), tuple(x[cand] for x in starts))
+        pairs += [(int(a), int(b), float(c)) for b, c in zip(cand, cost, strict=True) if c <= max_distance]
+    if not pairs:
+        return []
+    rows = sorted({p[0] for p in pairs})
+    cols = sorted({p[1] for p in pairs})
+    ri = {a: i for i, a in enumerate(rows)}
+    ci = {b: j for j, b in enumerate(cols)}
+    big = 1e6 * (1.0 + max_distance)
+    cost = np.full((len(rows), len(cols)), big)
+    for a, b, c in pairs:
+        cost[ri[a], ci[b]] = c
+    r, c = linear_sum_assignment(cost)
+    joins = [
+        Join(
+            int(s.ids[rows[i]]),
+            int(s.ids[cols[j]]),
+            int(first[cols[j]] - last[rows[i]] - 1),
+            float(cost[i, j]),
+        )
+        for i, j in zip(r.tolist(), c.tolist(), strict=True)
+        if cost[i, j] < big
+    ]
+    id_first = dict(zip(s.ids.tolist(), first.tolist(), strict=True))
+    return sorted(joins, key=lambda j: (id_first[j.later], j.later))
+
+
+def chain_heads(ids: np.ndarray, joins: list[Join]) -> np.ndarray:
+    """``(T,) int64``: for each id of ``ids``, the id of the earliest track of its chain of joins."""
+    prev = {j.later: j.earlier for j in joins}
+    out = np.empty(ids.size, np.int64)
+    for k, i in enumerate(ids.tolist()):
+        while i in prev:
+            i = prev[i]
+        out[k] = i
+    return out

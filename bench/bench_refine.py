@@ -9,7 +9,7 @@ PQ, PQ^Th, PQ^St, mIoU, LSTQ; identity switches along ground-truth tubes), so be
 differ only by refine. Also: refine's seconds per frame against the label stages'.
 
 Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_refine.py --out DIR [--rows dsnet-k1-track,...]
-[--cells hdl64:classic:303:60,vlp32:random:304:70,validation] [--frames 20] [--set window=5 ...]``.
+[--cells hdl64:classic:303:60,vlp32:random:304:70,validation:123] [--frames 20] [--set window=5 ...]``.
 ``--rows list`` prints the rows. Stores under ``DIR/<cell>/<row>`` are kept and reused; refine
 is recomputed when ``--set`` changes its config. Writes ``DIR/bench_refine.json`` and ``.md``.
 """
@@ -60,13 +60,14 @@ def make_cell(out: Path, cell: str, frames: int) -> Path:
     stamp = root / "bench_log.json"
     if stamp.exists() and json.loads(stamp.read_text()) == {"cell": cell, "frames": frames}:
         return root
-    if cell == "validation":
+    if cell.split(":")[0] == "validation":
         if not (VALIDATION / "other_generator.py").exists():
             raise SystemExit(f"{VALIDATION} is absent: leave 'validation' out of --cells")
         sys.path.insert(0, str(VALIDATION))
         import other_generator
 
-        other_generator.write_sequence(str(root), seq=8, n_frames=frames, seed=123)
+        seed = int(cell.split(":")[1]) if ":" in cell else 123
+        other_generator.write_sequence(str(root), seq=8, n_frames=frames, seed=seed)
     else:
         from dsnet_core.synth import generate_log
 
@@ -80,12 +81,12 @@ def make_cell(out: Path, cell: str, frames: int) -> Path:
 def pipeline_of(row: Row):
     """The row's method with ``refine`` after its labels stage (its own score stage left out)."""
     from tasks.methods import get_pipeline
-    from tasks.pipeline import Pipeline
-    from tasks.refine import RefineStage
 
-    base = get_pipeline(row.method, **row.options)
-    stages = (*[s for s in base.stages if s.name != "score"], RefineStage(labels=base.labels))
-    return Pipeline(f"{base.name}+refine", stages, labels="refine", options=base.options), base.labels
+    plain, refined = (
+        get_pipeline(row.method, **row.options, refine=False),
+        get_pipeline(row.method, **row.options, refine=True),
+    )
+    return refined, plain.labels
 
 
 def label(row: Row, data: Path, store: Path, refine: dict[str, Any]) -> dict[str, Any]:
@@ -93,13 +94,13 @@ def label(row: Row, data: Path, store: Path, refine: dict[str, Any]) -> dict[str
     import torch
 
     from dsnet_core.io.formats import open_log
-    from flows.request import stage_settings
     from storage.run import RunStore
+    from tasks.methods import stage_configs
     from tasks.runner import run_stage_plain
 
     torch.set_num_threads(1)
     pipeline, labels = pipeline_of(row)
-    stages = stage_settings(row.scans, method=row.method)
+    stages = stage_configs(row.method, scans=row.scans)
     stages["refine"] = refine
     run = {**pipeline.record(), "data": str(data), "format": "auto", "stages": stages,
            "options": {"block_size": 25}}  # fmt: skip
@@ -110,7 +111,7 @@ def label(row: Row, data: Path, store: Path, refine: dict[str, Any]) -> dict[str
     frames = 0
     for seq in reader.sequences():
         frames += len(reader.frames(seq))
-        for stage in pipeline.names():
+        for stage in [s for s in pipeline.names() if s != "score"]:
             m = run_stage_plain(rs, pipeline, seq, stage, run, "bench")
             seconds[stage] = seconds.get(stage, 0.0) + float(m.timings.get("wall_s", 0.0))
     return {"rs": rs, "pipeline": pipeline, "labels": labels, "reader": reader,

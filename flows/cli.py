@@ -11,9 +11,10 @@ from flows.commands.describe import describe
 from flows.commands.eval import eval_command
 from flows.commands.export import export
 from flows.commands.import_checkpoint import import_checkpoint
-from flows.commands.label import label, status
+from flows.commands.label import label
 from flows.commands.review import review
 from flows.commands.serve import serve
+from flows.commands.status import status
 from flows.commands.synth import synth
 from flows.commands.train import register_methods, train
 

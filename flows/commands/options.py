@@ -101,6 +101,15 @@ Equivariant = Annotated[
         "--equivariant", help="Require a C_n-equivariant checkpoint of this n.", rich_help_panel=MODEL
     ),
 ]
+Refine = Annotated[
+    bool | None,
+    typer.Option(
+        "--refine/--no-refine",
+        help="Refine the whole sequence offline (static-world vote, one class per track, tracks joined "
+        "across gaps); default: the method's (docs/refine.md). Switching recomputes refine and score.",
+        rich_help_panel=METHOD,
+    ),
+]
 Until = Annotated[str | None, typer.Option(help="Stop after this stage (e.g. align).", rich_help_panel=RUN)]
 
 
@@ -118,6 +127,7 @@ def label_settings(
     semantic_prior=None,
     prior_label_map=None,
     temporal="auto",
+    refine=None,
 ):
     """The command line's labelling settings, validated (:class:`~tasks.methods.LabelSettings`).
 
@@ -141,4 +151,5 @@ def label_settings(
         semantic_prior=semantic_prior,
         prior_label_map=prior_label_map,
         temporal=temporal,
+        refine=refine,
     )

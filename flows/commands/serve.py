@@ -32,6 +32,7 @@ def serve(
     stride: o.Stride = None,
     clusterer: o.Clusterer = None,
     temporal: o.Temporal = "auto",
+    refine: o.Refine = None,
     semantic_prior: o.SemanticPrior = None,
     prior_label_map: o.PriorLabelMap = None,
     checkpoint: o.Checkpoint = None,
@@ -62,6 +63,7 @@ def serve(
         settings = o.label_settings(
             scans, stride, checkpoint, clusterer, estimate_poses, max_points, device,
             semantic_prior=semantic_prior, prior_label_map=prior_label_map, temporal=temporal,
+            refine=refine,
         )  # fmt: skip
         request = LabelRequest.from_settings(
             settings,

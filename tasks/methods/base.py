@@ -24,6 +24,9 @@ if TYPE_CHECKING:
 Temporal = Literal["auto", "stitch", "track"]
 TEMPORAL_KINDS = ("stitch", "track")
 """How instance ids become sequence-wide: stitching overlapping volumes, or tracking instances."""
+REFINE_DEFAULT = False
+"""Whether a method's pipeline ends with the ``refine`` stage when the run does not say
+(``dsnet label --refine/--no-refine``); chosen by ``bench/bench_refine.py`` (docs/refine.md)."""
 DEVICE = re.compile(r"^(cpu|cuda(:\d+)?)$")
 
 
@@ -54,6 +57,7 @@ class LabelSettings(BaseModel):
     semantic_prior: str | None = None
     prior_label_map: str | None = None
     temporal: Temporal = "auto"
+    refine: bool | None = None
 
     @field_validator("device")
     @classmethod
@@ -65,7 +69,7 @@ class LabelSettings(BaseModel):
         return [name for name, f in type(self).model_fields.items() if getattr(self, name) != f.default]
 
 
-SHARED_SETTINGS = frozenset({"scans", "checkpoint", "estimate_poses", "max_points", "device"})
+SHARED_SETTINGS = frozenset({"scans", "checkpoint", "estimate_poses", "max_points", "device", "refine"})
 """Settings every method takes."""
 
 
@@ -175,7 +179,10 @@ class Method(ABC):
 
     def options(self, settings: LabelSettings) -> dict[str, Any]:
         """The ``method_options`` a run records for ``settings``."""
-        return {} if settings.temporal == "auto" else {"temporal": settings.temporal}
+        out: dict[str, Any] = {} if settings.temporal == "auto" else {"temporal": settings.temporal}
+        if settings.refine is not None:
+            out["refine"] = settings.refine
+        return out
 
     @abstractmethod
     def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
@@ -239,6 +246,23 @@ def resolve_temporal(
     if temporal not in TEMPORAL_KINDS:
         raise ValueError(f"unknown temporal association {temporal!r}; choose one of {list(TEMPORAL_KINDS)}")
     return temporal
+
+
+def refined(pipeline: Pipeline, options: Mapping[str, Any] | None) -> Pipeline:
+    """``pipeline`` with the offline ``refine`` stage (:mod:`tasks.refine`) between its labels stage
+    and ``score``, which then scores the refined labels; unchanged with ``refine`` off (the option,
+    else :data:`REFINE_DEFAULT`). The choice is recorded in the pipeline's options."""
+    from tasks.pipeline import Pipeline
+    from tasks.refine import RefineStage
+    from tasks.score import ScoreStage
+
+    refine = bool((options or {}).get("refine", REFINE_DEFAULT))
+    recorded = (*pipeline.options, ("refine", refine))
+    if not refine:
+        return Pipeline(pipeline.name, pipeline.stages, pipeline.labels, recorded)
+    stages = tuple(s for s in pipeline.stages if not isinstance(s, ScoreStage))
+    stages += (RefineStage(labels=pipeline.labels), ScoreStage(labels="refine"))
+    return Pipeline(pipeline.name, stages, labels="refine", options=recorded)
 
 
 def check_options(name: str, options: Mapping[str, Any] | None, known: tuple[str, ...]) -> None:

@@ -22,6 +22,7 @@ from tasks.methods.base import (
     clusterer_config,
     grid_of,
     ingest_settings,
+    refined,
     resolve_temporal,
 )
 
@@ -51,9 +52,10 @@ class Dpls(Method):
         from tasks.methods.bottom_up import bottom_up
         from tasks.prior import PriorStage
 
-        check_options(self.name, options, ("temporal",))
+        check_options(self.name, options, ("temporal", "refine"))
         model = DplsStage()
-        return bottom_up(self.name, (PriorStage(), model), model.name, resolve_temporal(options, stages))
+        temporal = resolve_temporal(options, stages)
+        return refined(bottom_up(self.name, (PriorStage(), model), model.name, temporal), options)
 
     def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
         if settings.prior_label_map and not settings.semantic_prior:

@@ -19,6 +19,7 @@ from tasks.methods.base import (
     clusterer_config,
     grid_of,
     ingest_settings,
+    refined,
     resolve_temporal,
 )
 from tasks.methods.dsnet_train import DsnetTrainOptions, train_dsnet
@@ -41,8 +42,10 @@ class Dsnet(Method):
         from tasks.infer import InferStage
         from tasks.methods.bottom_up import bottom_up
 
-        check_options(self.name, options, ("temporal",))
-        return bottom_up(self.name, (InferStage(),), "infer", resolve_temporal(options, stages))
+        check_options(self.name, options, ("temporal", "refine"))
+        return refined(
+            bottom_up(self.name, (InferStage(),), "infer", resolve_temporal(options, stages)), options
+        )
 
     def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
         stages = align_settings(self.scans(settings), settings.stride) | ingest_settings(settings)

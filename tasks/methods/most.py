@@ -19,6 +19,7 @@ from tasks.methods.base import (
     check_options,
     grid_of,
     ingest_settings,
+    refined,
 )
 
 if TYPE_CHECKING:
@@ -55,7 +56,7 @@ class Most(Method):
         from tasks.score import ScoreStage
         from tasks.track import TrackStage
 
-        check_options(self.name, options, ("temporal",))
+        check_options(self.name, options, ("temporal", "refine"))
         temporal = (options or {}).get("temporal", "track")
         if temporal not in ("track", "auto"):
             raise ValueError(
@@ -69,10 +70,11 @@ class Most(Method):
             TrackStage(source=model.name),
             ScoreStage(labels="track"),
         )
-        return Pipeline(self.name, stages_, labels="track")
+        return refined(Pipeline(self.name, stages_, labels="track"), options)
 
     def options(self, settings: LabelSettings) -> dict[str, Any]:
-        return {}  # tracking is MOST's only association: nothing to record
+        # tracking is MOST's only association: only refine is recorded
+        return {} if settings.refine is None else {"refine": settings.refine}
 
     def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
         if settings.stride not in (None, 1):

@@ -16,7 +16,7 @@ import hashlib
 import json
 from pathlib import Path
 
-from dsnet_core.model.checkpoint import SHIFT_WEIGHTS, CheckpointError, read_card, sha256_file
+from dsnet_core.model.card import SHIFT_WEIGHTS, CheckpointError, read_card, sha256_file
 
 MODELS = Path(__file__).resolve().parent / "data" / "models"
 BUNDLED_NAME = "tiny-v2"
@@ -109,7 +109,7 @@ def resolve_most_checkpoint(path: str | Path | None, scans: int = 3) -> Path:
         CheckpointError: None given and no bundled MOST model, or ``path`` is not a MOST checkpoint
             (a DS-Net one included: the message says which method it belongs to).
     """
-    from dsnet_core.most.checkpoint import read_most_card
+    from dsnet_core.most.card import read_most_card
 
     if path is None:
         found = bundled_most_checkpoint(scans)
@@ -133,7 +133,7 @@ def checkpoint_digest(path: str | Path) -> str:
     Returns:
         32 hex digits.
     """
-    from dsnet_core.most.checkpoint import checkpoint_method, read_most_card
+    from dsnet_core.most.card import checkpoint_method, read_most_card
 
     path = Path(path)
     card = read_most_card(path) if checkpoint_method(path) == "most" else read_card(path)

@@ -1,4 +1,5 @@
-"""An in-process progress hook: flows report finished blocks, the CLI draws bars from them."""
+"""An in-process progress hook: flows report finished blocks (and, for blocks running in this
+process, each finished item), the CLI draws bars from them."""
 
 from __future__ import annotations
 
@@ -8,12 +9,15 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class BlockEvent:
-    """``done`` of ``total`` blocks of ``stage`` finished (over all sequences of the run)."""
+    """``done`` of ``total`` items (frames or volumes, ``unit``) of ``stage`` are in finished blocks
+    (over all sequences of the run); ``item=True``: one more item finished inside a running block."""
 
     stage: str
     done: int
     total: int
     sequence: str = ""
+    unit: str = "frames"
+    item: bool = False
 
 
 _listeners: list[Callable[[BlockEvent], None]] = []

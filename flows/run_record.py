@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import socket
-import subprocess
 import time
 import uuid
 from pathlib import Path
@@ -11,6 +10,8 @@ from typing import Any
 
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
+from dsnet_core.version import code_version
+from flows.pending import resolved_location
 from flows.request import LabelRequest
 from storage.errors import NoRunConfigError, StoreError
 from storage.run import RunStore
@@ -18,28 +19,6 @@ from tasks.pipeline import Pipeline
 from tasks.run_config import RunConfig, read_run
 
 SUMMARY_COLUMNS = ("sequence", "stage", "action", "blocks_run", "items", "points", "seconds", "fingerprint")
-
-
-def code_version() -> str:
-    """Package version and, in a git checkout, the commit (recorded in the run config; fingerprints
-    use each stage's own ``version`` so an unrelated commit does not invalidate finished stages)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        out = f"dsnet-pipeline {version('dsnet-pipeline')}"
-    except PackageNotFoundError:
-        out = "dsnet-pipeline (not installed)"
-    repo = Path(__file__).resolve().parents[1]
-    if (repo / ".git").exists():
-        try:
-            res = subprocess.run(
-                ["git", "rev-parse", "--short", "HEAD"], cwd=repo, capture_output=True, text=True, timeout=5
-            )
-            if res.returncode == 0:
-                out += f" git {res.stdout.strip()}"
-        except (OSError, subprocess.TimeoutExpired):
-            pass
-    return out
 
 
 def new_run_id() -> str:
@@ -65,12 +44,6 @@ def check_same_log(store: RunStore, request: LabelRequest) -> None:
         f"holds runs of the log {previous.data}, not {request.data}: give this log its own --run "
         "folder (or remove this one)",
     )
-
-
-def resolved_location(data: str) -> str:
-    """Where a log is, independent of the working directory: a local path made absolute, a URL as
-    given (what the run config records, so a run folder accepts its log from any directory)."""
-    return data if "://" in data else str(Path(data).expanduser().resolve())
 
 
 def _same_place(a: str | None, b: str) -> bool:

@@ -139,11 +139,15 @@ def run_stage(
                 raise
             state.fail(seq, stage, exc)
     jobs = [j for d in decisions.values() for j in d.jobs]
+    unit = f"{pipeline[stage].item}s"
+    total = sum(len(j.items) for j in jobs)
     futures = {block_task.submit(j): j for j in jobs}
     errors: list[BaseException] = []
-    emit(BlockEvent(stage, 0, len(jobs)))
+    emit(BlockEvent(stage, 0, total, unit=unit))
+    items = 0
     for done, fut in enumerate(as_completed(list(futures)), start=1):
         job = futures[fut]
+        items += len(job.items)
         try:
             fut.result()
         except Exception as exc:
@@ -151,7 +155,7 @@ def run_stage(
             state.fail(job.sequence, stage, exc)
             if not skip:
                 errors.append(exc)
-        emit(BlockEvent(stage, done, len(jobs), job.sequence))
+        emit(BlockEvent(stage, items, total, job.sequence, unit))
         state.progress(stage, done / max(len(jobs), 1))
     if errors:
         raise errors[0]

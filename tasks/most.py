@@ -103,7 +103,7 @@ class MostStage(Stage):
 
     def plan(self, ctx: StageContext) -> Plan:
         from dsnet_core.errors import ConfigError
-        from dsnet_core.most.checkpoint import read_most_card
+        from dsnet_core.most.card import read_most_card
 
         _check_device(ctx.config.device)
         if volume_scans(ctx) != 1:

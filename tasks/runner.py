@@ -37,6 +37,10 @@ Run = RunConfig | dict[str, Any]
 
 log = logging.getLogger(__name__)
 
+ITEM_LISTENERS: list = []
+"""Called as ``fn(sequence, stage)`` after each item a block in this process computed (progress
+bars: blocks running elsewhere, e.g. on Dask workers, report only when they finish)."""
+
 
 @dataclass(frozen=True)
 class BlockJob:
@@ -253,6 +257,8 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
 
             records[res.index] = arrays.write_item(res.index, res.arrays, res.n_points, before_done)
         add(res.rows, res.counts)
+        for fn in list(ITEM_LISTENERS):
+            fn(job.sequence, job.stage)
     check_owner(store.root, store.lock_rel(job.sequence, job.stage), job.run_id)
     frag = BlockFragment(
         fingerprint=job.fingerprint,

@@ -13,95 +13,44 @@ either the previous checkpoint or the new one.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
-import subprocess
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from dsnet_core.errors import CheckpointError, CheckpointMismatchError, ConfigError
-from dsnet_core.labels import LabelMap, class_map_of, label_map_from_class_map
+from dsnet_core.errors import CheckpointError, CheckpointMismatchError
+from dsnet_core.labels import LabelMap, class_map_of
+from dsnet_core.model.card import (
+    CARD,
+    FORMAT,
+    SHIFT_WEIGHTS,
+    WEIGHTS,
+    ModelCard,
+    read_card,
+    sha256_file,
+    write_card,
+)
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
+from dsnet_core.version import code_version
 
-FORMAT = "dsnet-checkpoint/1"
-WEIGHTS, CARD = "model.safetensors", "card.json"
-SHIFT_WEIGHTS = "shift.safetensors"
-
-
-@dataclass
-class ModelCard:
-    """What a checkpoint is.
-
-    Attributes:
-        architecture: :meth:`ModelConfig.to_dict`.
-        class_map: label map name, class names, thing ids, train→raw ids.
-        training_data: fingerprint and description of the training data.
-        epochs: completed epochs per stage.
-        metrics: validation metrics, one dict per epoch.
-        code_version: git commit (or package version) that wrote it.
-        weights_sha256: hash of ``model.safetensors``.
-        shift_sha256: hash of ``shift.safetensors`` (:mod:`dsnet_core.model.bundle`), "" without one.
-    """
-
-    architecture: dict
-    class_map: dict
-    training_data: dict = field(default_factory=dict)
-    epochs: dict = field(default_factory=dict)
-    metrics: list = field(default_factory=list)
-    code_version: str = ""
-    weights_sha256: str = ""
-    shift_sha256: str = ""
-    format: str = FORMAT
-
-    @property
-    def config(self) -> ModelConfig:
-        return ModelConfig.from_dict(self.architecture)
-
-
-def code_version() -> str:
-    """``$DSNET_CODE_VERSION``, else the git commit of this code, else the package version."""
-    if os.environ.get("DSNET_CODE_VERSION"):
-        return os.environ["DSNET_CODE_VERSION"]
-    here = Path(__file__).resolve().parent
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=here,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        ).stdout.strip()
-        return sha + ("-dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        from importlib.metadata import PackageNotFoundError, version
-
-        try:
-            return version("dsnet-pipeline")
-        except PackageNotFoundError:
-            return "unknown"
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+__all__ = [  # the card's names are re-exported: a checkpoint is its weights and its card
+    "CARD",
+    "FORMAT",
+    "SHIFT_WEIGHTS",
+    "WEIGHTS",
+    "ModelCard",
+    "class_map_of",
+    "code_version",
+    "load_checkpoint",
+    "read_card",
+    "save_checkpoint",
+    "save_tensors",
+    "sha256_file",
+    "write_card",
+]
 
 
 def save_tensors(
@@ -123,44 +72,6 @@ def save_checkpoint(path: str | Path, model: DSNet, card: ModelCard) -> Path:
     card.code_version = card.code_version or code_version()
     write_card(path, card)
     return path
-
-
-def write_card(path: str | Path, card: ModelCard) -> None:
-    """Write ``CKPT/card.json`` atomically, recording the sha256 of ``shift.safetensors`` if present."""
-    path = Path(path)
-    shift = path / SHIFT_WEIGHTS
-    card.shift_sha256 = sha256_file(shift) if shift.is_file() else ""
-    _atomic_write_text(path / CARD, json.dumps(card.__dict__, indent=2, sort_keys=True))
-
-
-def read_card(path: str | Path) -> ModelCard:
-    """Read and validate ``CKPT/card.json``."""
-    card_path = Path(path) / CARD
-    if not card_path.is_file():
-        raise CheckpointError(card_path, "no model card (is this a checkpoint folder?)")
-    try:
-        data = json.loads(card_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CheckpointError(card_path, f"model card is not valid JSON: {exc}") from exc
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        hint = ""
-        if isinstance(data, dict) and str(data.get("format", "")).startswith("most-checkpoint"):
-            hint = " — a MOST checkpoint: label with --method most"
-        raise CheckpointError(card_path, f"not a {FORMAT} model card{hint}")
-    try:
-        card = ModelCard(**data)
-    except TypeError as exc:
-        raise CheckpointError(card_path, f"model card has unexpected fields: {exc}") from exc
-    # a changed class map or architecture is the card's error, found here, not a stage's later
-    try:
-        label_map_from_class_map(card.class_map)
-    except ConfigError as exc:
-        raise CheckpointError(card_path, str(exc)) from exc
-    try:
-        card.config  # noqa: B018 - parses the architecture
-    except (ConfigError, TypeError, KeyError, ValueError, AttributeError) as exc:
-        raise CheckpointError(card_path, f"model card architecture is malformed: {exc}") from exc
-    return card
 
 
 def _diff(expected: dict, found: dict) -> list[str]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 from dsnet_core.errors import ConfigError
-from dsnet_core.model.cylinder import CylinderGrid
+from dsnet_core.model.grid import CylinderGrid
 
 #: How the backbone's submanifold convolutions find their neighbours.
 #: ``"per-layer"``: every layer with its own kernel shape (the architecture as declared).

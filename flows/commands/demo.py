@@ -30,7 +30,7 @@ def demo(
     from dsnet_core.model.checkpoint import read_card
     from flows.commands.describe import print_log_summary
     from flows.commands.eval import print_result, score_predictions
-    from flows.commands.label import print_summary, run_label
+    from flows.commands.label import print_stage_table, run_label
     from flows.commands.synth import generate
     from flows.export import export_semantickitti
     from flows.request import LabelRequest
@@ -70,7 +70,7 @@ def demo(
         settings = LabelSettings(scans=scans, checkpoint=str(ckpt))
         request = LabelRequest.from_settings(settings, data=str(log), root=str(run), sequences=["00"])
     summary = run_label(request)
-    print_summary(summary)
+    print_stage_table(summary)
     if any(r["action"] == "failed" for r in summary):
         raise typer.Exit(code=1)
 

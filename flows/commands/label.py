@@ -56,6 +56,10 @@ def label(
     """Label a log into a run store, resuming whatever is already done there (dsnet: ingest → align →
     infer → shift → fuse → stitch|track → score; most: … → most → track → score; dpls: … → prior →
     dpls → shift → fuse → stitch|track → score)."""
+    import time
+
+    from flows.commands.label_report import run_report
+    from flows.pending import pending_sequences
     from flows.request import LabelRequest, parse_reader_options
 
     with errors_exit():
@@ -79,9 +83,11 @@ def label(
             force=force,
         )
         request.check()
-    summary = run_label(request, workers, dask_address, debug=debug)
-    print_summary(summary)
-    typer.echo(f"wrote run store {run}")
+        pending = pending_sequences(request)
+    t0 = time.monotonic()
+    summary = run_label(request, workers, dask_address, debug=debug) if pending else []
+    for line in run_report(request.root, summary, time.monotonic() - t0, request.storage_options):
+        typer.echo(line)
     if any(r["action"] == "failed" for r in summary):
         raise typer.Exit(code=1)
 
@@ -99,6 +105,12 @@ def run_label(
 
     quiet_prefect_env()
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")  # keep the progress bars readable
+    if not os.environ.get("PREFECT_API_URL"):
+        typer.echo(
+            "starting a temporary Prefect server for this run (10-30 s; point PREFECT_API_URL at a "
+            "running `prefect server start` to skip this)",
+            err=True,
+        )
     try:
         with _terminate_like_ctrl_c(), errors_exit(), prefect_api():
             from flows.label import label_dataset, task_runner
@@ -142,43 +154,86 @@ def _terminate_like_ctrl_c() -> Iterator[None]:
 
 
 def _progress_bars():
+    """Bars per stage counting frames (or volumes), with their rate and the time left."""
     from contextlib import contextmanager
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+    from rich.text import Text
 
-    from flows.progress import add_listener, remove_listener
+    from flows.progress import BlockEvent, add_listener, emit, remove_listener
+    from tasks.runner import ITEM_LISTENERS
+
+    class Rate(ProgressColumn):
+        def render(self, task) -> Text:
+            speed = task.finished_speed or task.speed
+            unit = task.fields.get("unit", "frames")
+            return Text("" if speed is None else f"{speed:.1f} {unit}/s", style="progress.data.speed")
+
+    def item_done(sequence: str, stage: str) -> None:
+        emit(BlockEvent(stage, 0, 0, sequence, item=True))
 
     @contextmanager
     def bars():
-        bars_by_stage = {}
-        with Progress(
-            TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
-        ) as progress:
+        tasks: dict[str, int] = {}
+        counted: dict[str, int] = {}
+        columns = (TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), Rate())
+        with Progress(*columns, TimeElapsedColumn(), TimeRemainingColumn()) as progress:
 
-            def on_event(ev) -> None:
-                if ev.stage not in bars_by_stage:
-                    bars_by_stage[ev.stage] = progress.add_task(ev.stage, total=max(ev.total, 1))
-                tid = bars_by_stage[ev.stage]
-                progress.update(tid, total=max(ev.total, 1), completed=ev.done if ev.total else 1)
+            def on_event(ev: BlockEvent) -> None:
+                if ev.stage not in tasks:
+                    if ev.item:
+                        return
+                    tasks[ev.stage] = progress.add_task(ev.stage, total=max(ev.total, 1), unit=ev.unit)
+                    counted[ev.stage] = 0
+                tid = tasks[ev.stage]
+                if ev.item:  # one more item of a block running here
+                    counted[ev.stage] += 1
+                else:
+                    counted[ev.stage] = max(counted[ev.stage], ev.done)
+                    progress.update(tid, total=max(ev.total, 1))
+                total = progress.tasks[tid].total or 1
+                progress.update(
+                    tid, completed=min(counted[ev.stage], total) if ev.total or ev.item else total
+                )
 
             add_listener(on_event)
+            ITEM_LISTENERS.append(item_done)
             try:
                 yield
             finally:
+                ITEM_LISTENERS.remove(item_done)
                 remove_listener(on_event)
 
     return bars()
 
 
-def print_summary(summary) -> None:
-    """The label run's summary table (one row per sequence and stage)."""
+def print_stage_table(summary) -> None:
+    """Per stage over all sequences: what was done, items, seconds (``dsnet demo``'s table)."""
     from rich.console import Console
     from rich.table import Table
 
     table = Table(title="label")
-    cols = ("sequence", "stage", "action", "blocks_run", "items", "points", "seconds", "fingerprint")
-    for col in cols:
+    for col in ("stage", "actions", "items", "points", "seconds"):
         table.add_column(col)
+    stages: dict[str, dict] = {}
     for row in summary:
-        table.add_row(*[str(row.get(c, "")) for c in cols])
-    Console(width=140).print(table)
+        if row.get("action") == "failed":
+            continue
+        s = stages.setdefault(row["stage"], {"actions": set(), "items": 0, "points": 0, "seconds": 0.0})
+        s["actions"].add(row["action"])
+        s["items"] += int(row.get("items") or 0)
+        s["points"] += int(row.get("points") or 0)
+        s["seconds"] += float(row.get("seconds") or 0.0)
+    for name, s in stages.items():
+        table.add_row(
+            name, ", ".join(sorted(s["actions"])), str(s["items"]), str(s["points"]), f"{s['seconds']:.2f}"
+        )
+    Console(width=100).print(table)

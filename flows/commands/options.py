@@ -30,7 +30,7 @@ EstimatePoses = Annotated[
     bool,
     typer.Option(
         "--estimate-poses",
-        help="KISS-ICP poses for sequences without poses.txt (the [odometry] extra; log poses win).",
+        help="KISS-ICP poses for sequences without poses.txt (the \\[odometry] extra; log poses win).",
         rich_help_panel=INPUT,
     ),
 ]

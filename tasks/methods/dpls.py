@@ -83,7 +83,7 @@ class Dpls(Method):
         return stages
 
     def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
-        from dsnet_core.model.checkpoint import read_card
+        from dsnet_core.model.card import read_card
 
         path = stages.get("dpls", {}).get("checkpoint") or self.bundled_checkpoint(1)
         return None if path is None else grid_of(read_card(path).config.grid)

@@ -65,7 +65,7 @@ class Dsnet(Method):
         return stages
 
     def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
-        from dsnet_core.model.checkpoint import read_card
+        from dsnet_core.model.card import read_card
 
         infer, align = stages.get("infer", {}), stages.get("align", {})
         path = infer.get("checkpoint") or self.bundled_checkpoint(int(align.get("scans", 1)))

@@ -93,7 +93,7 @@ class Most(Method):
         return stages
 
     def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
-        from dsnet_core.most.checkpoint import read_most_card
+        from dsnet_core.most.card import read_most_card
         from dsnet_core.most.config import MostConfig
 
         most = stages.get("most", {})

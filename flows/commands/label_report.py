@@ -1,0 +1,65 @@
+"""What ``dsnet label`` says when it ends: frames labelled, time per stage, the headline scores
+where ground truth exists, the dashboard and the next command."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def run_report(
+    root: str, summary: list[dict[str, Any]], seconds: float, storage_options: dict | None = None
+) -> list[str]:
+    """The lines to print after a label run (``summary``: its rows; empty when nothing was pending).
+
+    Args:
+        root: the run store.
+        summary: one row per (sequence, stage), plus ``failed`` rows.
+        seconds: the run's wall time.
+    """
+    from storage.errors import StoreError
+    from storage.run import DASHBOARD, RunStore
+
+    store = RunStore(root, storage_options)
+    if not summary:
+        lines = [f"nothing to do: every stage of every sequence in {root} is done and current "
+                 "(--from-stage STAGE or --force recomputes)"]  # fmt: skip
+    else:
+        ran = [r for r in summary if r.get("action") in ("fresh", "resume", "repair")]
+        seqs = sorted({r["sequence"] for r in summary if r.get("action") != "failed"})
+        frames = _labelled_frames(store, summary)
+        stages: dict[str, float] = {}
+        for r in ran:
+            stages[r["stage"]] = stages.get(r["stage"], 0.0) + float(r.get("seconds") or 0.0)
+        lines = [f"labelled {frames} frames of {len(seqs)} sequence(s) in {seconds:.1f} s"]
+        if stages:
+            lines.append("  per stage: " + " · ".join(f"{k} {v:.1f} s" for k, v in stages.items()))
+        for r in summary:
+            if r.get("action") == "failed":
+                lines.append(f"  failed: sequence {r['sequence']}: {r.get('error', '')}")
+    try:
+        from flows.report import read_report_table
+
+        run = read_report_table(store, "score_run").to_pylist()[0]
+        scores = " · ".join(
+            f"{name} {100 * run[key]:.1f}" for name, key in (("PQ", "pq"), ("mIoU", "miou"), ("LSTQ", "lstq"))
+            if run.get(key) is not None
+        )  # fmt: skip
+        lines.append(f"  scores ({run.get('mode', 'official')}, {run.get('frames', '?')} frames): {scores}")
+    except (StoreError, FileNotFoundError, IndexError, KeyError):
+        lines.append("  no ground truth scored (a log without labels, or no score stage)")
+    if store.root.exists(DASHBOARD):
+        lines.append(f"  dashboard: {store.root.url(DASHBOARD)}")
+    lines.append(f"  next: dsnet export {root} --out predictions   (dsnet status {root} for every stage)")
+    return lines
+
+
+def _labelled_frames(store, summary: list[dict[str, Any]]) -> int:
+    """Frames with final labels in this run's sequences (the labels stage's items)."""
+    from storage.errors import StoreError
+    from tasks.run_config import read_run
+
+    try:
+        labels = read_run(store).labels()
+    except (StoreError, ValueError):  # a summary line must not fail the run
+        return 0
+    return sum(int(r.get("items") or 0) for r in summary if r["stage"] == labels)

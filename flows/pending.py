@@ -1,0 +1,58 @@
+"""What a labelling request would compute, decided from the store's manifests alone (no Prefect):
+``dsnet label`` skips starting a server when nothing is pending, and ``dsnet serve``'s ticks label
+only the sequences that are new or stale."""
+
+from __future__ import annotations
+
+from flows.request import LabelRequest
+from storage.run import RunStore
+from tasks.run_config import RunConfig
+from tasks.runner import stage_fingerprint
+
+
+def resolved_location(data: str) -> str:
+    """Where a log is, independent of the working directory: a local path made absolute, a URL as
+    given (what the run config records, so a run folder accepts its log from any directory)."""
+    from pathlib import Path
+
+    return data if "://" in data else str(Path(data).expanduser().resolve())
+
+
+def request_run(request: LabelRequest, log_format: str) -> RunConfig:
+    """The run config a run of ``request`` would record (the part the fingerprints read)."""
+    pipeline = request.pipeline()
+    return RunConfig(
+        data=resolved_location(str(request.data)),
+        format=log_format,
+        reader_options=dict(request.reader_options),
+        stages=request.stage_configs(pipeline, request.order(pipeline)),
+        options=request.options,
+    )
+
+
+def pending_sequences(request: LabelRequest, sequences: list[str] | None = None) -> list[str]:
+    """The sequences (of ``sequences``, default the request's or the log's) for which a run of
+    ``request`` would compute some stage: one not finished, finished with another fingerprint (its
+    config, code version, inputs or upstream changed), or damaged. ``force`` and ``from_stage``
+    make every sequence pending."""
+    pipeline = request.pipeline()
+    reader = request.open_log()
+    if sequences is None:
+        sequences = request.sequences if request.sequences is not None else reader.sequences()
+    if request.force or request.from_stage:
+        return list(sequences)
+    store = RunStore(request.root, request.storage_options)
+    run = request_run(request, reader.format)
+    return [seq for seq in sequences if not _finished(store, pipeline, request.order(pipeline), seq, run)]
+
+
+def _finished(store: RunStore, pipeline, order: list[str], sequence: str, run: RunConfig) -> bool:
+    for stage in order:
+        m = store.read_manifest(sequence, stage)
+        if m is None or m.status != "done":
+            return False
+        if stage_fingerprint(store, pipeline, sequence, stage, run) != m.fingerprint:
+            return False
+        if store.check_stage(sequence, pipeline[stage].contract, m):
+            return False
+    return True

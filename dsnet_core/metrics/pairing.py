@@ -61,6 +61,19 @@ def sequence_names(sequences: Iterable[int | str]) -> list[str]:
     return out
 
 
+def common_sequences(gt_root: str | Path, pred_root: str | Path) -> list[str]:
+    """The sequences that have both ground-truth labels (``sequences/SS/labels/*.label``) and
+    predictions (``sequences/SS/predictions/*.label``), sorted."""
+
+    def having(root: Path, sub: str) -> set[str]:
+        seqs = Path(root) / "sequences"
+        if not seqs.is_dir():
+            return set()
+        return {p.name for p in seqs.iterdir() if p.is_dir() and any((p / sub).glob("*.label"))}
+
+    return sorted(having(Path(gt_root), "labels") & having(Path(pred_root), "predictions"))
+
+
 def pair_label_files(
     gt_root: str | Path,
     pred_root: str | Path,

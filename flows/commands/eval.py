@@ -27,7 +27,9 @@ def eval_command(
         "results of `dsnet export --format nuscenes` (panoptic/<split>/).",
     ),
     sequences: str = typer.Option(
-        None, help="Comma-separated sequences or scenes (default: the config's valid split; nuScenes: all)."
+        None,
+        help="Comma-separated sequences or scenes (default: every sequence with both ground truth and "
+        "predictions; nuScenes: all).",
     ),
     data_config: Path = typer.Option(
         None,
@@ -51,6 +53,9 @@ def eval_command(
 
     if json_out is not None and json_out.is_dir():  # before scoring, not after
         fail(f"--json {json_out}: is a folder; name a file (e.g. {json_out / 'scores.json'})")
+    if (pred / "run.json").is_file():
+        fail(f"--pred {pred}: a run store, not predictions: write them with `dsnet export {pred} --out DIR`, "
+             "then --pred DIR")  # fmt: skip
     if find_versions(gt):  # a nuScenes log (v1.0-*/ tables)
         return _eval_nuscenes(gt, pred, sequences, data_config, split, json_out)
     with errors_exit():
@@ -98,7 +103,8 @@ def score_predictions(
     """Score a predictions folder against a ground-truth folder → ``EvalResult``.
 
     Args:
-        sequences: sequences to score (default: the label config's ``valid`` split).
+        sequences: sequences to score (default: every sequence with both ground truth and
+            predictions, which the progress line names).
         data_config: SemanticKITTI-style label YAML (default: the bundled semantic-kitti).
 
     Raises:
@@ -109,16 +115,19 @@ def score_predictions(
 
     from dsnet_core.labels import load_label_map
     from dsnet_core.metrics.evaluator import PanopticEvaluator
-    from dsnet_core.metrics.pairing import iter_pairs, pair_label_files
+    from dsnet_core.metrics.pairing import common_sequences, iter_pairs, pair_label_files
 
     label_map = load_label_map(data_config or "semantic-kitti")
-    seqs = (
-        [s for s in sequences if s.strip()]
-        if sequences
-        else [str(s) for s in label_map.split.get("valid", [])]
-    )
+    seqs = [s for s in sequences if s.strip()] if sequences else common_sequences(gt, pred)
     if not seqs:
-        raise ValueError("no --sequences given and the label config has no 'valid' split")
+        raise ValueError(
+            f"no sequence has both ground truth ({gt}/sequences/SS/labels) and predictions "
+            f"({pred}/sequences/SS/predictions); name them with --sequences"
+        )
+    if not sequences and progress:
+        Console(stderr=True).print(
+            f"scoring sequences {', '.join(seqs)} (those with ground truth and predictions)"
+        )
     if min_points is not None and min_points < 0:
         raise ValueError(f"min_points must be >= 0, got {min_points}")
     ev = PanopticEvaluator(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -95,15 +96,31 @@ def _invoke(*args):
     return CliRunner().invoke(app, ["eval", *map(str, args)])
 
 
-def test_default_sequences_come_from_the_valid_split_and_mode_is_reported(log, tmp_path):
+def test_default_sequences_are_those_with_both_and_the_mode_is_reported(log, tmp_path):
     gt_root, pred_root, _ = log
     out = tmp_path / "s.json"
     res = _invoke(
         "--gt", gt_root, "--pred", pred_root, "--mode", "corrected", "--json", out, "--min-points", 10
     )
     assert res.exit_code == 0, res.output
+    assert "scoring sequences 08, 13 (those with ground truth and predictions)" in res.output
     report = json.loads(out.read_text())
-    assert report["frames"] == 3 and report["mode"] == "corrected"  # valid split = [8]
+    assert report["frames"] == 6 and report["mode"] == "corrected"
+    only = tmp_path / "only13"
+    shutil.copytree(pred_root / "sequences" / "13", only / "sequences" / "13")
+    res = _invoke("--gt", gt_root, "--pred", only, "--json", out)
+    assert res.exit_code == 0 and "scoring sequences 13 " in res.output, res.output
+    assert json.loads(out.read_text())["frames"] == 3
+    res = _invoke("--gt", gt_root, "--pred", tmp_path / "empty")
+    assert res.exit_code == 2 and "no sequence has both ground truth" in res.output
+
+
+def test_a_run_store_as_predictions_says_to_export_first(log, tmp_path):
+    gt_root, _, _ = log
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "run.json").write_text("{}")
+    res = _invoke("--gt", gt_root, "--pred", tmp_path / "run")
+    assert res.exit_code == 2 and f"dsnet export {tmp_path / 'run'} --out DIR" in res.output.replace("\n", "")
 
 
 def test_missing_extra_and_mismatched_predictions_are_named(log, tmp_path):
@@ -143,7 +160,9 @@ def test_data_config_sets_split_and_ignored_classes(log, tmp_path):
     cfg = tmp_path / "cfg.yaml"
     cfg.write_text(yaml.safe_dump(data))
     out = tmp_path / "s.json"
-    res = _invoke("--gt", gt_root, "--pred", pred_root, "--data-config", cfg, "--json", out)
+    res = _invoke(
+        "--gt", gt_root, "--pred", pred_root, "--data-config", cfg, "--json", out, "--sequences", "13"
+    )
     assert res.exit_code == 0, res.output
     report = json.loads(out.read_text())
     assert report["frames"] == 3 and "sidewalk" not in report["per_class"] and len(report["per_class"]) == 18

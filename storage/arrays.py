@@ -9,10 +9,9 @@ which is what keeps concurrent block writers correct (sharded writes by several 
 Integrity: zarr reads a missing chunk as fill values (zeros) without a word, so the arrays cannot
 tell a lost chunk from a zero one by themselves. When an item is written, :meth:`StageArrays.write_item`
 returns its **item record**: ``n_points`` and, per array, the stored chunk's size (None when zarr
-stored nothing: an all-fill chunk) and the CRC-32 of the item's padded row as read back (records
-written before 2026-11 hold a blake2b-128 digest instead, still verified; CRC-32 runs ~4x faster
-and still catches a truncated, swapped or overwritten chunk: these checks guard against accidents,
-not against an adversary).
+stored nothing: an all-fill chunk) and the CRC-32 of the item's padded row as read back (4x faster
+than blake2b and still catching a truncated, swapped or overwritten chunk: these checks guard
+against accidents, not against an adversary).
 The runner keeps it in the item's record and its block's fragment. :meth:`StageArrays.read_item`
 checks what it reads against that record and raises :class:`~storage.errors.DamagedStoreError`
 naming the chunk file when a chunk is missing, cannot be decoded (truncated) or has other content;
@@ -53,10 +52,8 @@ def row_crc32(row: np.ndarray) -> str:
 
 
 def _row_matches(row: np.ndarray, chunk: dict[str, Any]) -> bool:
-    """Whether a chunk's decoded row matches its record (CRC-32, or blake2b for older records)."""
-    if "crc32" in chunk:
-        return row_crc32(row) == chunk["crc32"]
-    return "blake2b" not in chunk or digest(row) == chunk["blake2b"]
+    """Whether a chunk's decoded row matches its record's CRC-32."""
+    return row_crc32(row) == chunk.get("crc32")
 
 
 def _zarr_store(root: RootFS, rel: str, read_only: bool = False):

@@ -362,13 +362,6 @@ class RunStore:
                         bad = Damage(exc.where, exc.problem, item)
                 if bad is not None:
                     out.append(bad)
-            if full and not frag.records:  # fragments from before records: decode what is done
-                for item, done in zip(frag.items, arrays.done_items(frag.items), strict=True):
-                    try:
-                        if done:
-                            arrays.read_item(item)
-                    except DamagedStoreError as exc:
-                        out.append(Damage(exc.where, exc.problem, item))
         return out
 
     def _check_table(

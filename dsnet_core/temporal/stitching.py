@@ -388,7 +388,7 @@ class Stitcher:
             StitchError: unknown state version or a different label map.
         """
         version = state.get("version")
-        if version not in (1, STATE_VERSION):
+        if version != STATE_VERSION:
             raise StitchError(f"stitch state version {version!r}, expected {STATE_VERSION}")
         s = cls(label_map, min_iou=state["min_iou"])
         if s.label_map.name != state["label_map"]:
@@ -397,14 +397,8 @@ class Stitcher:
             )
         s.next_id, s.n_volumes = int(state["next_id"]), int(state["n_volumes"])
         s._first, s._last = state["first"], state["last"]
-        if version == 1:
-            keys = np.asarray(state["carry_keys"], dtype=np.int64)
-            ids = np.asarray(state["carry_ids"], dtype=np.int64)
-            order = np.argsort(keys, kind="stable")
-            s._carry_keys, s._carry_ids = keys[order], ids[order]
-        else:
-            s._carry_keys = np.cumsum(_unpack(state["carry_keys"]))
-            s._carry_ids = _unpack(state["carry_ids"])
+        s._carry_keys = np.cumsum(_unpack(state["carry_keys"]))
+        s._carry_ids = _unpack(state["carry_ids"])
         for t in state["tracks"]:
             s._tracks[int(t["id"])] = _Track(
                 classes={int(c): int(n) for c, n in t["classes"]},

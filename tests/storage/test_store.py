@@ -260,21 +260,15 @@ def test_missing_truncated_and_changed_chunks_are_named_never_zeros(tmp_path):
     assert [d.item for d in store.check_stage("00", contract, m, full=True)] == [0, 1, 2, 3]
 
 
-def test_item_records_with_the_older_blake2b_digest_are_still_verified(tmp_path):
-    from storage.arrays import digest
-
+def test_an_item_record_without_its_crc32_is_damage_not_a_pass(tmp_path):
+    """Store format 1 records a CRC-32 per chunk; a record without one (a pre-release store's
+    blake2b) does not verify, so nothing unverified is read back as complete."""
     store = RunStore(tmp_path)
     _finished_stage(store)
-    arrays = store.arrays("00", VOLUME)
     record = store.read_item_record("00", "align", 1)
     assert set(record["chunks"]["points"]) == {"size", "crc32"}
-    row = arrays._get("points", 1)
-    for chunk in record["chunks"].values():  # as a store written before CRC-32 records has them
-        del chunk["crc32"]
-    record["chunks"]["points"]["blake2b"] = digest(row)
-    store.write_item_record("00", "align", 1, record)
-    assert np.array_equal(store.arrays("00", VOLUME).read_item(1)["points"], row[:6])
-    record["chunks"]["points"]["blake2b"] = digest(row + 1)
+    for chunk in record["chunks"].values():
+        chunk["blake2b"] = chunk.pop("crc32")
     store.write_item_record("00", "align", 1, record)
     with pytest.raises(DamagedStoreError, match="does not match the checksum"):
         store.arrays("00", VOLUME).read_item(1)
@@ -397,3 +391,19 @@ def test_report_tables_have_a_record_checked_by_status_and_readers(tmp_path):
     assert damage.problem == "file is missing"
     store.write_run_table(report, rows)  # the next run rewrites it whole, with its record
     assert store.check_run_table(report, full=True) == []
+
+
+def test_a_store_of_another_format_is_refused_in_one_line_that_says_to_relabel(tmp_path):
+    from storage.errors import NoRunConfigError, StoreFormatError
+    from storage.run import STORE_FORMAT
+
+    store = RunStore(tmp_path)
+    with pytest.raises(NoRunConfigError, match="no run config here"):
+        store.read_run_config()
+    store.write_run_config("r1", {"data": "log"})
+    assert store.read_run_config()["store_format"] == STORE_FORMAT == 1
+    (tmp_path / "run.json").write_text('{"run_id": "r0", "data": "log"}')  # before format 1
+    with pytest.raises(
+        StoreFormatError, match="run store of format before 1, this dsnet reads format 1: relabel"
+    ):
+        store.read_run_config()

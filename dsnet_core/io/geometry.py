@@ -8,42 +8,20 @@ frame (``p_parent = T @ p_child``).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 
 def quat_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrix float64 ``(..., 3, 3)`` of quaternions ``(..., 4)`` (w, x, y, z), normalised first."""
+    """Rotation matrix float64 ``(..., 3, 3)`` of quaternions ``(..., 4)`` (w, x, y, z), normalised first
+    (scipy's :class:`~scipy.spatial.transform.Rotation`)."""
     q = np.asarray(q_wxyz, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    flat = Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix()
+    return flat.reshape(*q.shape[:-1], 3, 3)
 
 
 def matrix_to_quat(r: np.ndarray) -> np.ndarray:
-    """Unit quaternion ``(w, x, y, z)`` with w ≥ 0 of a rotation matrix ``(3, 3)`` (Shepperd's method)."""
-    r = np.asarray(r, dtype=np.float64)
-    tr = np.trace(r)
-    i = int(np.argmax([tr, r[0, 0], r[1, 1], r[2, 2]]))
-    if i == 0:
-        s = 2.0 * np.sqrt(1.0 + tr)
-        q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-    elif i == 1:
-        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-    elif i == 2:
-        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    return q if q[0] >= 0 else -q
+    """Unit quaternion ``(w, x, y, z)`` with w ≥ 0 of a rotation matrix ``(3, 3)``."""
+    return Rotation.from_matrix(np.asarray(r, dtype=np.float64)).as_quat(canonical=True, scalar_first=True)
 
 
 def pose_matrix(translation: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
@@ -58,17 +36,9 @@ def pose_matrix(translation: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, u: float) -> np.ndarray:
-    """Spherical interpolation between unit quaternions (w, x, y, z), ``u`` in [0, 1]."""
-    q0 = np.asarray(q0, dtype=np.float64)
-    q1 = np.asarray(q1, dtype=np.float64)
-    dot = float(q0 @ q1)
-    if dot < 0:  # the shorter arc
-        q1, dot = -q1, -dot
-    if dot > 1 - 1e-12:
-        q = q0 + u * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = np.arccos(min(dot, 1.0))
-    return (np.sin((1 - u) * theta) * q0 + np.sin(u * theta) * q1) / np.sin(theta)
+    """Spherical interpolation (the shorter arc) between unit quaternions (w, x, y, z), ``u`` in [0, 1]."""
+    ends = Rotation.from_quat(np.stack([q0, q1]).astype(np.float64), scalar_first=True)
+    return Slerp([0.0, 1.0], ends)([float(u)]).as_quat(scalar_first=True)[0]
 
 
 def interpolate_pose(

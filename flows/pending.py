@@ -5,6 +5,7 @@ only the sequences that are new or stale."""
 from __future__ import annotations
 
 from flows.request import LabelRequest
+from storage.errors import StoreError
 from storage.run import RunStore
 from tasks.run_config import RunConfig
 from tasks.runner import stage_fingerprint
@@ -47,12 +48,18 @@ def pending_sequences(request: LabelRequest, sequences: list[str] | None = None)
 
 
 def _finished(store: RunStore, pipeline, order: list[str], sequence: str, run: RunConfig) -> bool:
-    for stage in order:
-        m = store.read_manifest(sequence, stage)
-        if m is None or m.status != "done":
-            return False
-        if stage_fingerprint(store, pipeline, sequence, stage, run) != m.fingerprint:
-            return False
-        if store.check_stage(sequence, pipeline[stage].contract, m):
-            return False
+    """Whether every stage of ``order`` is done and current. Read without the run's locks: another
+    run may be changing the store meanwhile, so anything unreadable or in flux counts as pending
+    (the run itself then decides under its locks)."""
+    try:
+        for stage in order:
+            m = store.read_manifest(sequence, stage)
+            if m is None or m.status != "done":
+                return False
+            if stage_fingerprint(store, pipeline, sequence, stage, run) != m.fingerprint:
+                return False
+            if store.check_stage(sequence, pipeline[stage].contract, m):
+                return False
+    except StoreError:  # e.g. an upstream stage cleared by a concurrent run between two reads
+        return False
     return True

@@ -123,7 +123,8 @@ def value_lines(
     fr = _Frame(index, width, height, vmax)
     bins = _bins(index)
     xs = [fr.x(sum(index[p] for p in b) / len(b)) for b in bins]
-    fmt = (lambda v: f"{100 * v:.0f}") if percent else (lambda v: f"{v:.3g}")
+    digits = 1 if percent and vmax < 0.1 else 0  # a few per cent: ticks 0, 1.6, 3.3, ... not 0, 2, 3
+    fmt = (lambda v: f"{100 * v:.{digits}f}") if percent else (lambda v: f"{v:.3g}")
     out = [_open(chart_id, width, height), *fr.axes(unit, fmt)]
     for name, colour, values in lines:
         parts, pen = [], False

@@ -13,7 +13,7 @@ from flows.commands.common import errors_exit
 def dashboard(
     roots: list[str] = typer.Argument(..., help="Run store roots; the first is the baseline (A) for deltas."),
     out: Path = typer.Option(Path("dashboard.html"), "--out", help="HTML file to write."),
-    title: str = typer.Option("dsnet evaluation", help="Page title."),
+    title: str = typer.Option("dsnet run report", help="Page title."),
 ) -> None:
     """Write a self-contained HTML dashboard (works offline) from the runs' report tables: what was
     labelled, confidence, tracks, refinement, timings, the review queue, and the scores where the

@@ -52,7 +52,7 @@ def page_sections(runs: list[RunTables]) -> list[tuple[str, str, str]]:
     return out
 
 
-def render_dashboard(runs: list[RunTables], title: str = "dsnet evaluation") -> str:
+def render_dashboard(runs: list[RunTables], title: str = "dsnet run report") -> str:
     """The whole page as one HTML string (self-contained: no external requests)."""
     if not runs:
         raise ValueError("render_dashboard needs at least one run")
@@ -73,7 +73,7 @@ def render_dashboard(runs: list[RunTables], title: str = "dsnet evaluation") -> 
 
 
 def build_dashboard(
-    roots: list[str], out: str | Path, title: str = "dsnet evaluation", storage_options: dict | None = None
+    roots: list[str], out: str | Path, title: str = "dsnet run report", storage_options: dict | None = None
 ) -> Path:
     """Read the report tables of each run root and write the dashboard to ``out``.
 

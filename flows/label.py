@@ -43,7 +43,7 @@ def label(request: LabelRequest) -> list[dict[str, Any]]:
             run_stage(store, pipeline, stage, sequences, run, state, force=stage in forced)
     summary = state.rows()
     report_run(store, run_id, summary)
-    if "score" in state.stages:  # report tables, dashboard and score artifacts
+    if "score" in state.stages or pipeline.labels in state.stages:  # report, dashboard, score artifacts
         from flows.publish import publish
 
         publish(

@@ -63,6 +63,8 @@ def test_dpls_carries_the_prior_to_the_final_labels(dpls_run):
         assert np.array_equal(out["probs"], pri["prior"]) and out["probs"].shape[1] == LM.num_classes
         assert np.array_equal(pri["prior"].argmax(1), gt) and set(np.unique(pri["prior"])) <= {0, 255}
         assert out["offsets"].dtype == np.float32 and out["features"].shape[1] == 32
+        stuff = ~thing[gt]  # shift reads offsets and features on thing points only
+        assert not out["offsets"][stuff].any() and not out["features"][stuff].any()
         fused = fuse.read_item(v)
         stuff = ~thing[gt]
         assert np.array_equal(fused["sem"][stuff], gt[stuff]) and not fused["inst"][stuff].any()

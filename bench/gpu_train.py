@@ -103,6 +103,15 @@ def make_val(root: Path, frames: int, workers: int) -> Path:
     return root
 
 
+def val_folder(frames: int) -> Path:
+    """Where the validation log is cached: per frame count and version of the generator's code."""
+    import hashlib
+
+    synth = Path(__file__).resolve().parents[1] / "dsnet_core" / "synth"
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(synth.rglob("*.py")))).hexdigest()
+    return Path(tempfile.gettempdir()) / f"dsnet-gpu-train-val-{frames}-{digest[:10]}"
+
+
 def calibrate(trainer, device: str, steps: int) -> float:
     """Samples per second of the semantic stage's training (rendering included), from the steps
     after the first two of a throwaway epoch."""
@@ -129,7 +138,9 @@ def make_trainer_class(base):
         export: Path
         deadline: float
         mark: float
+        stop_after: int = 0
         longest: float = 0.0
+        epochs_here: int = 0
 
         def _save(self, stage, epochs_done, opt, shift=None) -> None:
             super()._save(stage, epochs_done, opt, shift)
@@ -138,6 +149,11 @@ def make_trainer_class(base):
             self.longest = max(self.longest, now - self.mark)
             self.mark = now
             print(f"{stage} epoch {epochs_done} packed into {self.export} ({elapsed()})", flush=True)
+            self.epochs_here += 1
+            if self.stop_after and self.epochs_here >= self.stop_after:
+                raise BudgetReached(
+                    f"stopped after {stage} epoch {epochs_done} (--stop-after {self.stop_after})"
+                )
             if self.deadline - now < 1.25 * self.longest + 5:
                 raise BudgetReached(f"stopped after {stage} epoch {epochs_done}: the next would not fit")
 
@@ -160,6 +176,7 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--epoch-seconds", type=float, default=60.0, help="target length of an epoch")
     ap.add_argument("--samples-per-epoch", type=int, default=0, help="0: measured at the start")
     ap.add_argument("--val-frames", type=int, default=4, help="frames per validation sequence")
+    ap.add_argument("--stop-after", type=int, default=0, help="stop after N epochs in this run (0: budget)")
     return ap.parse_args()
 
 
@@ -213,7 +230,7 @@ def train(args: argparse.Namespace, run: dict, ckpt: Path) -> str | None:
     from dsnet_core.train.stream import StreamLog
 
     label_map = load_label_map("semantic-kitti")
-    val = make_val(Path(tempfile.gettempdir()) / f"dsnet-gpu-train-val-{args.val_frames}", args.val_frames, 6)
+    val = make_val(val_folder(args.val_frames), args.val_frames, 6)
     val_reader = open_log(val, options={"label_map": label_map})
     vseqs = val_reader.sequences()
     print(f"validation: {len(vseqs)} sequences x {args.val_frames} frames ({elapsed()})")
@@ -242,6 +259,7 @@ def train(args: argparse.Namespace, run: dict, ckpt: Path) -> str | None:
             resume=run["resume"],
         )
         trainer.export, trainer.deadline, trainer.mark = args.out, deadline, time.perf_counter()
+        trainer.stop_after = args.stop_after
 
         def watchdog(stage, epoch, step, total, loss) -> None:
             if time.perf_counter() > deadline - 5:

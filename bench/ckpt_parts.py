@@ -7,6 +7,13 @@ readable copies of ``card.json`` and ``metrics.csv`` (the validation curve), and
 ``checkpoint.json`` — each part's size and sha256 — which makes the set complete. :func:`unpack`
 checks the parts against it before extracting, so a copy cut short or mixed from two exports is
 refused with the part it found wrong. Only the standard library is used.
+
+The way back is the tighter one: a later run carries ``OUT`` to the next GPU machine together with
+the working tree (~24 MiB, 22 of them the bundled models) and the wheels (~12.5 MiB) within the
+same 64 MiB. So the optimiser state (Adam's two moments: twice the weights) is packed only while
+the whole checkpoint stays within :data:`CARRY_BYTES`; above that it is left out (the manifest
+says so) and a resumed run restarts Adam's moments at the epoch it continues — weights, schedule
+and the stream's samples continue exactly, the steps after it do not repeat bit for bit.
 """
 
 from __future__ import annotations
@@ -24,16 +31,17 @@ MAX_BYTES = 64 * 2**20
 MANIFEST = "checkpoint.json"
 PART_PREFIX = "checkpoint.tar."
 COPIES = ("card.json", "metrics.csv")
+CARRY_BYTES = 24 * 2**20
+OPTIONAL = ("train_state.safetensors", "train_state.json")
+"""Files left out of a checkpoint over :data:`CARRY_BYTES` (the optimiser state)."""
 
 
 class PartsError(RuntimeError):
     """A checkpoint that does not fit the limits, or parts that do not match their manifest."""
 
 
-def _tar(folder: Path) -> tuple[bytes, list[str]]:
-    """The folder's files (not hidden ones: a staging ``.pending`` is no part of a checkpoint) as
-    an uncompressed tar, in name order."""
-    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+def _tar(folder: Path, names: list[str]) -> bytes:
+    """The named files of ``folder`` as an uncompressed tar, in this order."""
     buf = io.BytesIO()
     with tarfile.open(fileobj=buf, mode="w", format=tarfile.PAX_FORMAT) as tar:
         for name in names:
@@ -43,7 +51,7 @@ def _tar(folder: Path) -> tuple[bytes, list[str]]:
             info.mtime = 0
             with open(folder / name, "rb") as f:
                 tar.addfile(info, f)
-    return buf.getvalue(), names
+    return buf.getvalue()
 
 
 def _write(path: Path, data: bytes) -> None:
@@ -55,8 +63,11 @@ def _write(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
-def pack(folder: Path, out: Path, part_bytes: int = PART_BYTES) -> list[Path]:
+def pack(folder: Path, out: Path, part_bytes: int = PART_BYTES, carry_bytes: int = CARRY_BYTES) -> list[Path]:
     """Write checkpoint ``folder`` into ``out`` as parts, copies and the manifest (written last).
+
+    Hidden files (a staging ``.pending``) are no part of a checkpoint; the optimiser state is
+    left out when the checkpoint would exceed ``carry_bytes``.
 
     Returns:
         The files written, the manifest last.
@@ -64,7 +75,12 @@ def pack(folder: Path, out: Path, part_bytes: int = PART_BYTES) -> list[Path]:
     Raises:
         PartsError: the files would exceed :data:`MAX_FILES` or :data:`MAX_BYTES`.
     """
-    data, names = _tar(folder)
+    names = sorted(p.name for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    left_out = []
+    if sum((folder / n).stat().st_size for n in names) > carry_bytes:
+        left_out = [n for n in names if n in OPTIONAL]
+        names = [n for n in names if n not in OPTIONAL]
+    data = _tar(folder, names)
     parts = [data[i : i + part_bytes] for i in range(0, len(data), part_bytes)] or [b""]
     copies = [c for c in COPIES if (folder / c).is_file()]
     count = len(parts) + len(copies) + 1
@@ -89,6 +105,8 @@ def pack(folder: Path, out: Path, part_bytes: int = PART_BYTES) -> list[Path]:
         _write(out / c, (folder / c).read_bytes())
         written.append(out / c)
     manifest = {"parts": records, "files": names, "tar_sha256": hashlib.sha256(data).hexdigest()}
+    if left_out:
+        manifest["left_out"] = {"files": left_out, "why": f"over {carry_bytes / 2**20:.0f} MiB to carry back"}
     _write(out / MANIFEST, json.dumps(manifest, indent=2).encode())
     written.append(out / MANIFEST)
     return written
@@ -99,11 +117,11 @@ def exists(out: Path) -> bool:
     return (out / MANIFEST).is_file()
 
 
-def unpack(out: Path, dest: Path) -> list[str]:
+def unpack(out: Path, dest: Path) -> dict:
     """Check the parts in ``out`` against the manifest and extract the checkpoint into ``dest``.
 
     Returns:
-        The checkpoint's file names.
+        The manifest (``files``: the checkpoint's file names; ``left_out``, if any, what was not packed).
 
     Raises:
         PartsError: no manifest, or a part missing, of another size or another hash.
@@ -126,4 +144,4 @@ def unpack(out: Path, dest: Path) -> list[str]:
     dest.mkdir(parents=True, exist_ok=True)
     with tarfile.open(fileobj=io.BytesIO(b"".join(chunks)), mode="r") as tar:
         tar.extractall(dest, filter="data")
-    return list(manifest["files"])
+    return manifest

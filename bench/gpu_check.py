@@ -8,14 +8,15 @@ On a machine with a CUDA torch and no package registry (see bench/gpu_wheels.py 
    dynamic shifting and training in each AMP mode), one row per test;
 3. runs bench/bench_gpu.py (frames/s at k = 1 and 2, training steps with and without AMP and their
    peak memory, the label stages per frame) with what is left of ``--budget``;
-4. prints one table (and writes it with every figure as JSON to ``--out`` if given).
+4. prints one table (and writes it, with the machine and every bench figure, as one JSON file to
+   ``--out`` if given: a device run returns at most 8 files).
 
 ``--device cpu`` is the smoke mode for a machine without a GPU: the tests run with the CPU on
 both sides (they prove they run, not that CUDA equals CPU) and the bench takes the ``tiny``
 preset on 4 frames. Exit status 1 when a test or the bench failed. Only the standard library is
 imported here; the work runs in child processes.
 
-Run: ``python3 bench/gpu_check.py [--device cuda] [--budget 480] [--out DIR]``.
+Run: ``python3 bench/gpu_check.py [--device cuda] [--budget 480] [--out FILE.json]``.
 """
 
 from __future__ import annotations
@@ -160,7 +161,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=None, help="bench log frames (default 6; 4 on cpu)")
     ap.add_argument("--repeats", type=int, default=None, help="timed repeats (default 5; 1 on cpu)")
     ap.add_argument("--tests-share", type=float, default=0.35, help="fraction of the budget for tests")
-    ap.add_argument("--out", type=Path, default=None, help="folder for table.md and check.json")
+    ap.add_argument("--out", type=Path, default=None, help="JSON file for the table and every figure")
     args = ap.parse_args()
     cpu = args.device == "cpu"
     args.preset = args.preset or ("tiny" if cpu else "paper")
@@ -208,9 +209,9 @@ def main() -> None:
     text = table.render()
     print(text)
     if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "table.md").write_text(text + "\n")
-        (args.out / "check.json").write_text(json.dumps({"machine": info, "bench": bench}, indent=2))
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        record = {"table": text.splitlines(), "rows": table.rows, "machine": info, "bench": bench}
+        args.out.write_text(json.dumps(record, indent=2))
     sys.exit(1 if table.failed else 0)
 
 

@@ -218,7 +218,7 @@ def test_parts_round_trip_within_the_limits(tmp_path, checkpoint):
     assert all(p.stat().st_size <= 32 * 1024 for p in parts)
     assert written[-1].name == "checkpoint.json" and len(written) == 6
     assert (out / "card.json").read_text() == (checkpoint / "card.json").read_text()
-    names = ckpt_parts.unpack(out, tmp_path / "back")
+    names = ckpt_parts.unpack(out, tmp_path / "back")["files"]
     assert names == ["card.json", "metrics.csv", "model.safetensors", "train_state.safetensors"]
     for name in names:
         assert (tmp_path / "back" / name).read_bytes() == (checkpoint / name).read_bytes()
@@ -230,7 +230,20 @@ def test_a_smaller_export_removes_the_parts_it_no_longer_has(tmp_path, checkpoin
     (checkpoint / "train_state.safetensors").unlink()
     ckpt_parts.pack(checkpoint, out, part_bytes=32 * 1024)
     assert sorted(p.name for p in out.glob("checkpoint.tar.*")) == ["checkpoint.tar.00", "checkpoint.tar.01"]
-    assert "train_state.safetensors" not in ckpt_parts.unpack(out, tmp_path / "back")
+    assert "train_state.safetensors" not in ckpt_parts.unpack(out, tmp_path / "back")["files"]
+
+
+def test_the_optimiser_state_is_left_out_of_a_checkpoint_too_large_to_carry_back(tmp_path, checkpoint):
+    out = tmp_path / "out"
+    (checkpoint / "train_state.json").write_text("{}")
+    ckpt_parts.pack(checkpoint, out, carry_bytes=50 * 1024)  # 70 KiB with it, 40 KiB without
+    manifest = ckpt_parts.unpack(out, tmp_path / "back")
+    assert manifest["files"] == ["card.json", "metrics.csv", "model.safetensors"]
+    assert manifest["left_out"] == {
+        "files": ["train_state.json", "train_state.safetensors"],
+        "why": "over 0 MiB to carry back",
+    }
+    assert sorted(p.name for p in (tmp_path / "back").iterdir()) == manifest["files"]
 
 
 def test_a_cut_or_missing_part_is_refused_by_name(tmp_path, checkpoint):

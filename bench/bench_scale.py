@@ -9,9 +9,10 @@ every per-frame figure (1.0 = grows like the frame count; the aims: peak RSS ≤
 frame within ±10 %, each command ≤ 2 s at 1,000 frames).
 
 Every command is a fresh process (``python -m flows.cli``), so its Python start and imports
-(~2 s on a loaded 2-core machine) are inside its time. The sensor defaults to ``vlp32`` (32 beams,
-~55 k points per frame: a lighter load than the 124 k-point hdl64 of the speed benches; the growth
-with length is the question here). Logs are generated once into ``--work`` and reused.
+(~1 s on a loaded 2-core machine) are inside its time. The sensor defaults to ``vlp32`` (32 beams,
+~25 k points per frame: a far lighter load than the 124 k-point hdl64 of the speed benches; the
+growth with length is the question here). Stages run blocks of 25 items in parallel threads, so
+lengths under 50 frames are no baseline. Logs are generated once into ``--work`` and reused.
 
 Run: ``nice -n 19 .venv/bin/python bench/bench_scale.py --lengths 100,300,1000 [--sensor vlp32]
 [--work DIR] [--json FILE]``.
@@ -49,6 +50,17 @@ def dsnet(args: list[str], log: Path) -> tuple[float, float, int]:
     return wall, usage.ru_maxrss / 1024, proc.returncode
 
 
+def stage_times(run: Path) -> dict[str, dict[str, float]]:
+    """Per stage, from its manifest: ``stages_s`` its wall time, ``blocks_s`` the sum of its blocks'
+    times (blocks of 25 items run in parallel threads: the sum is the work, inflated by contention)."""
+    out: dict[str, dict[str, float]] = {"stages_s": {}, "blocks_s": {}}
+    for manifest in sorted((run / "sequences" / SEQ).glob("*/manifest.json")):
+        m = json.loads(manifest.read_text())
+        out["stages_s"][m["stage"]] = m["timings"].get("wall_s", float("nan"))
+        out["blocks_s"][m["stage"]] = m["timings"].get("block_s", float("nan"))
+    return out
+
+
 def tree_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 
@@ -71,20 +83,20 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
     shutil.rmtree(run, ignore_errors=True)
     label = ["label", str(log), "--run", str(run), *args.label_args]
     res["label_s"], res["label_rss_mib"], code = dsnet(label, out_log)
-    if code:
-        sys.exit(f"dsnet label failed: see {out_log}")
-    res["stages_s"] = {}
-    for manifest in sorted((run / "sequences" / SEQ).glob("*/manifest.json")):
-        m = json.loads(manifest.read_text())
-        res["stages_s"][m["stage"]] = m["timings"].get("wall_s", float("nan"))
+    if code:  # keep what the finished stages measured; the commands need a finished run
+        errors = [line for line in out_log.read_text().splitlines() if line.startswith("error:")]
+        res["label_error"] = errors[-1] if errors else f"exit {code}: see {out_log}"
+    res |= stage_times(run)
     res["store_bytes"] = {p.name: tree_bytes(p) for p in sorted((run / "sequences" / SEQ).iterdir())}
     res["store_bytes"]["tables"] = tree_bytes(run / "tables")
     res["store_bytes"]["(total)"] = tree_bytes(run)
-    for name, extra in (
-        ("status", []),
-        ("export", ["--out", str(work / f"preds-{frames}")]),
-        ("dashboard", ["--out", str(run / "dashboard.html")]),
-    ):
+    commands = [("status", [])]
+    if not code:
+        commands += [
+            ("export", ["--out", str(work / f"preds-{frames}")]),
+            ("dashboard", ["--out", str(run / "dashboard.html")]),
+        ]
+    for name, extra in commands:
         shutil.rmtree(work / f"preds-{frames}", ignore_errors=True)
         wall, rss, code = dsnet([name, str(run), *extra], out_log)
         res[f"{name}_s"], res[f"{name}_rss_mib"] = (wall, rss) if code == 0 else (float("nan"), rss)
@@ -94,36 +106,43 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
 def report(results: list[dict]) -> None:
     """The per-length table, then every per-frame figure as a ratio to the shortest length."""
     print(
-        "\n| frames | label s/frame | stages s/frame | peak RSS MiB | store KiB/frame "
+        "\n| frames | label s/frame | stages s/frame | blocks s/frame | peak RSS MiB | store KiB/frame "
         "| status s | export s | dashboard s |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
+    nan = float("nan")
     for r in results:
         n = r["frames"]
+        blocks = sum(r["blocks_s"].values()) / n if "blocks_s" in r else nan
         print(
-            f"| {n} | {r['label_s'] / n:.3f} | {sum(r['stages_s'].values()) / n:.3f} | "
+            f"| {n} | {r['label_s'] / n:.3f} | {sum(r['stages_s'].values()) / n:.3f} | {blocks:.3f} | "
             f"{r['label_rss_mib']:.0f} | {r['store_bytes']['(total)'] / n / 1024:.0f} | "
-            f"{r['status_s']:.2f} | {r['export_s']:.2f} | {r['dashboard_s']:.2f} |"
+            f"{r['status_s']:.2f} | {r.get('export_s', nan):.2f} | {r.get('dashboard_s', nan):.2f} |"
         )
+        if "label_error" in r:
+            print(f"|   | label failed: {r['label_error']} (figures of the stages it finished) |")
     base = results[0]
     n0 = base["frames"]
     print(f"\nper-frame figures against {n0} frames (1.00 = linear in the frame count):")
     for r in results[1:]:
         n = r["frames"]
         k = n / n0
-        rows = {"label wall": r["label_s"] / base["label_s"] / k}
-        rows |= {
-            f"stage {s}": (r["stages_s"][s] / n) / (base["stages_s"][s] / n0)
-            for s in r["stages_s"]
-            if base["stages_s"].get(s)
-        }
+        rows = {} if "label_error" in r else {"label wall": r["label_s"] / base["label_s"] / k}
+        for key, name in (("stages_s", "stage"), ("blocks_s", "blocks")):
+            rows |= {
+                f"{name} {s}": (r[key][s] / n) / (base[key][s] / n0)
+                for s in r.get(key, {})
+                if base.get(key, {}).get(s)
+            }
         rows |= {
             f"store {s}": (b / n) / (base["store_bytes"][s] / n0)
             for s, b in r["store_bytes"].items()
-            if base["store_bytes"].get(s)
+            if base["store_bytes"].get(s) and "label_error" not in r
         }
         rows["label peak RSS (absolute)"] = r["label_rss_mib"] / base["label_rss_mib"]
         for c in ("status", "export", "dashboard"):
+            if f"{c}_s" not in r:
+                continue
             rows[f"{c} (absolute time)"] = r[f"{c}_s"] / base[f"{c}_s"]
             rows[f"{c} peak RSS (absolute)"] = r[f"{c}_rss_mib"] / base[f"{c}_rss_mib"]
         print(f"  {n} frames ({k:.0f}x): " + ", ".join(f"{name} {v:.2f}" for name, v in rows.items()))
@@ -136,7 +155,15 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=None, help="logs and runs (default: a new temp folder)")
     ap.add_argument("--json", type=Path, default=None, help="append each length's figures here")
     ap.add_argument("--label-args", default="", help="extra `dsnet label` options, e.g. '--scans 1'")
+    ap.add_argument("--report", type=Path, default=None, help="only print the report of a --json file")
     args = ap.parse_args()
+    if args.report:  # runs kept in --work also give their blocks' times
+        results = [json.loads(line) for line in args.report.read_text().splitlines() if line.strip()]
+        for r in results:
+            if args.work and (args.work / f"run-{r['frames']}").is_dir():
+                r |= stage_times(args.work / f"run-{r['frames']}")
+        report(results)
+        return
     args.work = args.work or Path(tempfile.mkdtemp(prefix="bench-scale-"))
     args.work.mkdir(parents=True, exist_ok=True)
     args.label_args = args.label_args.split()

@@ -101,9 +101,13 @@ def junit_rows(path: Path) -> list[tuple[str, str, float, str]]:
 
 def check_tests(table: Table, args: argparse.Namespace, env: dict, timeout: float, tmp: Path) -> None:
     report = tmp / "tests.xml"
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "gpu", "tests/gpu"]
-    cmd += [f"--junitxml={report}", "-o", f"timeout={int(max(timeout, 30))}"]
-    test_env = {**env, "DSNET_GPU_TESTS_ON_CPU": "1"} if args.device == "cpu" else env
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "pytest_timeout"]
+    cmd += ["-m", "gpu", "tests/gpu", f"--junitxml={report}", "-o", f"timeout={int(max(timeout, 30))}"]
+    # the machine's own pytest plugins (xdist, cov, benchmark, ...) were built for its pytest, not
+    # for the one the wheels put first: load none of them
+    test_env = {**env, "PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1"}
+    if args.device == "cpu":
+        test_env["DSNET_GPU_TESTS_ON_CPU"] = "1"
     code, text, secs = run(cmd, timeout, test_env)
     rows = junit_rows(report) if report.is_file() else []
     for name, result, t, message in rows:

@@ -16,7 +16,7 @@ both sides (they prove they run, not that CUDA equals CPU) and the bench takes t
 preset on 4 frames. Exit status 1 when a test or the bench failed. Only the standard library is
 imported here; the work runs in child processes.
 
-Run: ``python3 bench/gpu_check.py [--device cuda] [--budget 480] [--out FILE.json]``.
+Run: ``python3 bench/gpu_check.py [--device cuda] [--budget 450] [--out FILE.json]``.
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default="cuda", choices=("cuda", "cpu"))
     ap.add_argument("--wheels", type=Path, default=DEFAULT_WHEELS)
-    ap.add_argument("--budget", type=float, default=480.0, help="seconds for everything")
+    ap.add_argument("--budget", type=float, default=450.0, help="seconds for everything (8 min with margin)")
     ap.add_argument("--preset", default=None, help="bench width (default paper; tiny with --device cpu)")
     ap.add_argument("--frames", type=int, default=None, help="bench log frames (default 6; 4 on cpu)")
     ap.add_argument("--repeats", type=int, default=None, help="timed repeats (default 5; 1 on cpu)")

@@ -113,7 +113,7 @@ def val_folder(frames: int) -> Path:
     return Path(tempfile.gettempdir()) / f"dsnet-gpu-train-val-{frames}-{digest[:10]}"
 
 
-def calibrate(trainer, device: str, steps: int) -> float:
+def calibrate(trainer, device: str) -> float:
     """Samples per second of the semantic stage's training (rendering included), from the steps
     after the first two of a throwaway epoch."""
     import torch
@@ -246,7 +246,7 @@ def train(args: argparse.Namespace, run: dict, ckpt: Path) -> str | None:
         if not run["samples"]:
             with tempfile.TemporaryDirectory(prefix="dsnet-gpu-calibrate-") as tmp:
                 trial = Trainer(tmp, run["model"], reader, probe, val_reader, vseqs, label_map, run["train"])
-                rate = calibrate(trial, args.device, reader.steps)
+                rate = calibrate(trial, args.device)
             reader.steps = max(4, int(rate * args.epoch_seconds * 0.85))  # fixed: the card records it
             print(f"{rate:.2f} samples/s: {reader.steps} samples per epoch ({elapsed()})")
             reader.prefetch(probe)

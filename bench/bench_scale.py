@@ -24,6 +24,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -51,13 +52,22 @@ def dsnet(args: list[str], log: Path) -> tuple[float, float, int]:
 
 
 def stage_times(run: Path) -> dict[str, dict[str, float]]:
-    """Per stage, from its manifest: ``stages_s`` its wall time, ``blocks_s`` the sum of its blocks'
-    times (blocks of 25 items run in parallel threads: the sum is the work, inflated by contention)."""
-    out: dict[str, dict[str, float]] = {"stages_s": {}, "blocks_s": {}}
+    """Per stage, from its manifest and block fragments: ``stages_s`` its wall time, ``blocks_s``
+    the sum of its blocks' times (blocks of 25 items run in parallel threads: the sum is the work,
+    inflated by contention), ``median_item_s`` the median over its blocks of seconds per item (the
+    figure least moved by other load on a shared machine)."""
+    out: dict[str, dict[str, float]] = {"stages_s": {}, "blocks_s": {}, "median_item_s": {}}
     for manifest in sorted((run / "sequences" / SEQ).glob("*/manifest.json")):
         m = json.loads(manifest.read_text())
         out["stages_s"][m["stage"]] = m["timings"].get("wall_s", float("nan"))
         out["blocks_s"][m["stage"]] = m["timings"].get("block_s", float("nan"))
+        per_item = []
+        for frag in manifest.parent.glob("blocks/*.json"):
+            f = json.loads(frag.read_text())
+            if f.get("fingerprint") == m["fingerprint"] and f.get("items"):
+                per_item.append(f["seconds"] / len(f["items"]))
+        if per_item:
+            out["median_item_s"][m["stage"]] = statistics.median(per_item)
     return out
 
 
@@ -106,14 +116,14 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
 def report(results: list[dict]) -> None:
     """The per-length table, then every per-frame figure as a ratio to the shortest length."""
     print(
-        "\n| frames | label s/frame | stages s/frame | blocks s/frame | peak RSS MiB | store KiB/frame "
+        "\n| frames | label s/frame | stages s/frame | median blocks s/item | peak RSS MiB | store KiB/frame "
         "| status s | export s | dashboard s |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
     for r in results:
         n = r["frames"]
-        blocks = sum(r["blocks_s"].values()) / n if "blocks_s" in r else nan
+        blocks = sum(r["median_item_s"].values()) if "median_item_s" in r else nan
         print(
             f"| {n} | {r['label_s'] / n:.3f} | {sum(r['stages_s'].values()) / n:.3f} | {blocks:.3f} | "
             f"{r['label_rss_mib']:.0f} | {r['store_bytes']['(total)'] / n / 1024:.0f} | "
@@ -128,9 +138,9 @@ def report(results: list[dict]) -> None:
         n = r["frames"]
         k = n / n0
         rows = {} if "label_error" in r else {"label wall": r["label_s"] / base["label_s"] / k}
-        for key, name in (("stages_s", "stage"), ("blocks_s", "blocks")):
+        for key, name, per in (("stages_s", "stage", (n, n0)), ("median_item_s", "median block", (1, 1))):
             rows |= {
-                f"{name} {s}": (r[key][s] / n) / (base[key][s] / n0)
+                f"{name} {s}": (r[key][s] / per[0]) / (base[key][s] / per[1])
                 for s in r.get(key, {})
                 if base.get(key, {}).get(s)
             }

@@ -2,11 +2,12 @@
 with ``dsnet label`` (the product's defaults: bundled model, k = 2, stitched, scored), then
 ``dsnet status``, ``dsnet export`` and ``dsnet dashboard`` on the run.
 
-Per length it reports seconds per frame (the ``label`` command's wall time, and each stage's from
-its manifest), the label process's peak RSS, the store's bytes per frame (and per stage), and the
-wall time and peak RSS of the three commands; then, against the shortest length, the ratios of
-every per-frame figure (1.0 = grows like the frame count; the aims: peak RSS ≤ 1.2×, seconds per
-frame within ±10 %, each command ≤ 2 s at 1,000 frames).
+Per length it reports seconds per frame (the ``label`` command's wall and CPU time, each stage's
+wall time from its manifest, and the median over its blocks of seconds per item: the figure the
+load of a shared machine moves least), the label process's peak RSS, the store's bytes per frame
+(and per stage), and the wall time and peak RSS of the three commands; then, against the shortest
+length, the ratios of every per-frame figure (1.0 = grows like the frame count; the aims: peak
+RSS ≤ 1.2×, seconds per frame within ±10 %, each command ≤ 2 s at 1,000 frames).
 
 Every command is a fresh process (``python -m flows.cli``), so its Python start and imports
 (~1 s on a loaded 2-core machine) are inside its time. The sensor defaults to ``vlp32`` (32 beams,
@@ -35,8 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SEQ = "00"
 
 
-def dsnet(args: list[str], log: Path) -> tuple[float, float, int]:
-    """Run ``dsnet ARGS`` (output appended to ``log``): (wall seconds, peak RSS MiB, exit status)."""
+def dsnet(args: list[str], log: Path) -> tuple[float, float, int, float]:
+    """Run ``dsnet ARGS`` (output appended to ``log``): (wall seconds, peak RSS MiB, exit status,
+    CPU seconds of the process, all its threads; its child processes not included)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     with open(log, "a") as out:
         out.write(f"\n$ dsnet {' '.join(args)}\n")
@@ -48,7 +50,7 @@ def dsnet(args: list[str], log: Path) -> tuple[float, float, int]:
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
-    return wall, usage.ru_maxrss / 1024, proc.returncode
+    return wall, usage.ru_maxrss / 1024, proc.returncode, usage.ru_utime + usage.ru_stime
 
 
 def stage_times(run: Path) -> dict[str, dict[str, float]]:
@@ -84,7 +86,7 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
     if not (log / ".complete").is_file():
         shutil.rmtree(log, ignore_errors=True)
         synth = ["synth", str(log), "--sequences", "1", "--frames", str(frames), "--seed", "0"]
-        wall, _, code = dsnet([*synth, "--sensor", args.sensor], out_log)
+        wall, _, code, _ = dsnet([*synth, "--sensor", args.sensor], out_log)
         if code:
             sys.exit(f"dsnet synth failed: see {out_log}")
         (log / ".complete").touch()
@@ -92,7 +94,7 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
     run = work / f"run-{frames}"
     shutil.rmtree(run, ignore_errors=True)
     label = ["label", str(log), "--run", str(run), *args.label_args]
-    res["label_s"], res["label_rss_mib"], code = dsnet(label, out_log)
+    res["label_s"], res["label_rss_mib"], code, res["label_cpu_s"] = dsnet(label, out_log)
     if code:  # keep what the finished stages measured; the commands need a finished run
         errors = [line for line in out_log.read_text().splitlines() if line.startswith("error:")]
         res["label_error"] = errors[-1] if errors else f"exit {code}: see {out_log}"
@@ -108,7 +110,7 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
         ]
     for name, extra in commands:
         shutil.rmtree(work / f"preds-{frames}", ignore_errors=True)
-        wall, rss, code = dsnet([name, str(run), *extra], out_log)
+        wall, rss, code, _ = dsnet([name, str(run), *extra], out_log)
         res[f"{name}_s"], res[f"{name}_rss_mib"] = (wall, rss) if code == 0 else (float("nan"), rss)
     return res
 
@@ -116,16 +118,17 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
 def report(results: list[dict]) -> None:
     """The per-length table, then every per-frame figure as a ratio to the shortest length."""
     print(
-        "\n| frames | label s/frame | stages s/frame | median blocks s/item | peak RSS MiB | store KiB/frame "
-        "| status s | export s | dashboard s |"
+        "\n| frames | label s/frame | label CPU s/frame | stages s/frame | median blocks s/item "
+        "| peak RSS MiB | store KiB/frame | status s | export s | dashboard s |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
     for r in results:
         n = r["frames"]
         blocks = sum(r["median_item_s"].values()) if "median_item_s" in r else nan
         print(
-            f"| {n} | {r['label_s'] / n:.3f} | {sum(r['stages_s'].values()) / n:.3f} | {blocks:.3f} | "
+            f"| {n} | {r['label_s'] / n:.3f} | {r.get('label_cpu_s', nan) / n:.3f} | "
+            f"{sum(r['stages_s'].values()) / n:.3f} | {blocks:.3f} | "
             f"{r['label_rss_mib']:.0f} | {r['store_bytes']['(total)'] / n / 1024:.0f} | "
             f"{r['status_s']:.2f} | {r.get('export_s', nan):.2f} | {r.get('dashboard_s', nan):.2f} |"
         )
@@ -138,6 +141,8 @@ def report(results: list[dict]) -> None:
         n = r["frames"]
         k = n / n0
         rows = {} if "label_error" in r else {"label wall": r["label_s"] / base["label_s"] / k}
+        if "label_cpu_s" in r and "label_cpu_s" in base and "label_error" not in r:
+            rows["label CPU"] = r["label_cpu_s"] / base["label_cpu_s"] / k
         for key, name, per in (("stages_s", "stage", (n, n0)), ("median_item_s", "median block", (1, 1))):
             rows |= {
                 f"{name} {s}": (r[key][s] / per[0]) / (base[key][s] / per[1])

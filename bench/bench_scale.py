@@ -110,8 +110,9 @@ def measure(frames: int, args: argparse.Namespace) -> dict:
         ]
     for name, extra in commands:
         shutil.rmtree(work / f"preds-{frames}", ignore_errors=True)
-        wall, rss, code, _ = dsnet([name, str(run), *extra], out_log)
+        wall, rss, code, cpu = dsnet([name, str(run), *extra], out_log)
         res[f"{name}_s"], res[f"{name}_rss_mib"] = (wall, rss) if code == 0 else (float("nan"), rss)
+        res[f"{name}_cpu_s"] = cpu
     return res
 
 
@@ -119,7 +120,7 @@ def report(results: list[dict]) -> None:
     """The per-length table, then every per-frame figure as a ratio to the shortest length."""
     print(
         "\n| frames | label s/frame | label CPU s/frame | stages s/frame | median blocks s/item "
-        "| peak RSS MiB | store KiB/frame | status s | export s | dashboard s |"
+        "| peak RSS MiB | store KiB/frame | status s (CPU) | export s (CPU) | dashboard s (CPU) |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
@@ -130,7 +131,11 @@ def report(results: list[dict]) -> None:
             f"| {n} | {r['label_s'] / n:.3f} | {r.get('label_cpu_s', nan) / n:.3f} | "
             f"{sum(r['stages_s'].values()) / n:.3f} | {blocks:.3f} | "
             f"{r['label_rss_mib']:.0f} | {r['store_bytes']['(total)'] / n / 1024:.0f} | "
-            f"{r['status_s']:.2f} | {r.get('export_s', nan):.2f} | {r.get('dashboard_s', nan):.2f} |"
+            + " | ".join(
+                f"{r.get(c + '_s', nan):.2f} ({r.get(c + '_cpu_s', nan):.2f})"
+                for c in ("status", "export", "dashboard")
+            )
+            + " |"
         )
         if "label_error" in r:
             print(f"|   | label failed: {r['label_error']} (figures of the stages it finished) |")

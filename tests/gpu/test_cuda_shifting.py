@@ -1,8 +1,12 @@
 """Dynamic shifting on CUDA equals the CPU path (marker ``gpu``; see tests/gpu/device.py).
 
 On CUDA the flat kernel runs as the dense all-pairs kernel, on CPU as the neighbour (radius-sum)
-kernel; both compute the same means. Tolerances: kernel targets and converged seeds 1e-4 m
-(float32 sums in another order); the clusterer's partition of well separated objects exactly.
+kernel; both compute the same means. Inputs lie on a 1/64 m grid, so every squared distance near a
+bandwidth is exact in float32 and none ties with a radius (no point is in one device's
+neighbourhood and out of the other's). Later iterations start from means, off the grid: there a
+near-tie may move a seed, so they are held to 1e-4 m for 99.5 % of the seeds. Tolerances: kernel
+targets and the first iteration 1e-5 m (float32 sums in another order); the clusterer's converged
+seeds 1e-3 m and its partition of well separated objects exactly.
 """
 
 from __future__ import annotations
@@ -22,12 +26,17 @@ from tests.gpu.device import DEVICE, MARKS
 pytestmark = MARKS
 
 
+def _on_grid(x: np.ndarray) -> np.ndarray:
+    return (np.round(x * 64) / 64).astype(np.float32)
+
+
 def _objects(seed: int, m: int, spread: float = 0.7) -> tuple[np.ndarray, np.ndarray]:
-    """float32 ``(m, 3)`` points around 30 centres 9 m apart on a plane, and each point's centre."""
+    """float32 ``(m, 3)`` points (on the 1/64 m grid) around 30 centres 9 m apart on a plane, and
+    each point's centre."""
     rng = np.random.default_rng(seed)
     grid = np.stack(np.meshgrid(np.arange(6), np.arange(5)), -1).reshape(-1, 2) * 9.0 - 22.0
     centres = np.concatenate([grid, np.zeros((30, 1))], 1)[rng.integers(0, 30, m)]
-    return (centres + rng.normal(size=(m, 3)) * spread).astype(np.float32), centres.astype(np.float32)
+    return _on_grid(centres + rng.normal(size=(m, 3)) * spread), centres.astype(np.float32)
 
 
 def test_dense_kernel_on_cuda_matches_cpu_neighbours():
@@ -47,14 +56,16 @@ def test_learned_shifting_on_cuda_equals_cpu():
         cpu = module(x, feats)
         module.kernel = "dense"
         gpu = module.to(DEVICE)(x.to(DEVICE), feats.to(DEVICE))
-    torch.testing.assert_close(gpu.weights.cpu(), cpu.weights, atol=1e-4, rtol=0)
-    torch.testing.assert_close(gpu.positions.cpu(), cpu.positions, atol=1e-4, rtol=0)
+    torch.testing.assert_close(gpu.weights[0].cpu(), cpu.weights[0], atol=1e-5, rtol=0)
+    torch.testing.assert_close(gpu.positions[0].cpu(), cpu.positions[0], atol=1e-5, rtol=0)
+    near = (gpu.positions.cpu() - cpu.positions).abs().amax(-1) <= 1e-4  # (iterations, seeds)
+    assert near.float().mean(1).min() >= 0.995, near.float().mean(1)
 
 
 def test_clusterer_on_cuda_gives_the_cpu_partition():
     """Seeds, convergence and the final mean shift: the same objects, id for id."""
     xyz, truth = _objects(6, 4000, spread=0.5)
-    centres = truth + 0.2 * (xyz - truth)  # regressed centres: most of the way to the objects' centres
+    centres = _on_grid(truth + 0.2 * (xyz - truth))  # regressed: most of the way to the objects' centres
     feats = np.random.default_rng(7).normal(size=(4000, 32)).astype(np.float32)
     torch.manual_seed(0)
     module = DynamicShift()
@@ -62,6 +73,6 @@ def test_clusterer_on_cuda_gives_the_cpu_partition():
     module.kernel = "dense"
     gpu = DynamicShiftClusterer(module, n_seeds=1500, device=DEVICE).run(xyz, centres, feats)
     assert np.array_equal(gpu.seeds, cpu.seeds)
-    np.testing.assert_allclose(gpu.converged, cpu.converged, atol=1e-4)
+    np.testing.assert_allclose(gpu.converged, cpu.converged, atol=1e-3)
     assert np.array_equal(gpu.ids, cpu.ids)
     assert len(np.unique(cpu.ids)) == 30  # one instance per object

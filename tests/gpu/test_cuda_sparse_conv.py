@@ -2,8 +2,9 @@
 
 The two devices build their neighbour tables differently (numba loops on CPU, whole-array torch on
 CUDA) and multiply in another layout (chunked per segment on CPU, one batched GEMM per group on
-CUDA). Tolerances: float64 1e-10 (values and gradients of a down-up stack); a float32 U-Net-like
-stack on ~20 k sites 1e-4 relative.
+CUDA). Tolerances, relative to each tensor's largest magnitude (sums of ~20 k products in another
+order): float64 1e-10 (values and gradients of a down-up stack on 700 sites), float32 1e-4 (the
+same on ~20 k sites).
 """
 
 from __future__ import annotations
@@ -47,10 +48,7 @@ def _run(layers, feats, coords, shape, batch, device):
 
 @pytest.mark.parametrize(
     ("dtype", "shape", "sites", "tol"),
-    [
-        (torch.float64, (12, 10, 8), 700, dict(atol=1e-10, rtol=1e-10)),
-        (torch.float32, (120, 90, 16), 20_000, dict(atol=1e-4, rtol=1e-4)),
-    ],
+    [(torch.float64, (12, 10, 8), 700, 1e-10), (torch.float32, (120, 90, 16), 20_000, 1e-4)],
     ids=["float64", "float32-20k-sites"],
 )
 def test_sparse_stack_on_cuda_equals_cpu(dtype, shape, sites, tol):
@@ -61,4 +59,4 @@ def test_sparse_stack_on_cuda_equals_cpu(dtype, shape, sites, tol):
     gpu = _run(_stack(4, dtype), feats, coords, shape, batch, DEVICE)
     assert torch.equal(gpu[0], cpu[0])  # the same active sites in the same order
     for a, b in zip(gpu[1:], cpu[1:], strict=True):
-        torch.testing.assert_close(a, b, **tol)
+        torch.testing.assert_close(a, b, atol=tol * float(b.abs().max()), rtol=tol)

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 Temporal = Literal["auto", "stitch", "track"]
 TEMPORAL_KINDS = ("stitch", "track")
 """How instance ids become sequence-wide: stitching overlapping volumes, or tracking instances."""
-REFINE_DEFAULT = False
+REFINE_DEFAULT = True
 """Whether a method's pipeline ends with the ``refine`` stage when the run does not say
 (``dsnet label --refine/--no-refine``); chosen by ``bench/bench_refine.py`` (docs/refine.md)."""
 DEVICE = re.compile(r"^(cpu|cuda(:\d+)?)$")

@@ -31,8 +31,10 @@ def test_label_method_dpls_with_a_user_prior_then_export_and_eval(synth_log, tmp
     assert config["stages"]["prior"] == {"source": "user", "path": str(prior), "label_map": "semantic-kitti"}
     assert config["stages"]["shift"] == {"clusterer": {"kind": "dbscan"}}
     pipeline = RunConfig.of(config).pipeline()
-    assert pipeline.names() == ["ingest", "align", "prior", "dpls", "shift", "fuse", "stitch", "score"]
-    assert store.read_manifest("00", "stitch").status == "done"
+    assert pipeline.names() == [
+        *("ingest", "align", "prior", "dpls", "shift", "fuse", "stitch", "refine", "score")
+    ]  # refine by default
+    assert store.read_manifest("00", "refine").status == "done"
 
     runner = CliRunner()
     out = tmp_path / "export"

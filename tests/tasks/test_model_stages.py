@@ -16,7 +16,7 @@ from tasks.methods import get_pipeline
 from tasks.runner import prepare_stage, run_stage_plain
 from tests.model_helpers import KILL_STITCH_AT_THIRD_VOLUME, make_checkpoint
 
-P = get_pipeline()  # the DS-Net stages
+P = get_pipeline(refine=False)  # the DS-Net stages
 
 LM = load_label_map("semantic-kitti")
 STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
@@ -25,6 +25,7 @@ SHIFT_4D = {"kind": "dynamic_shift", "n_seeds": 300, "bandwidths": [0.2, 1.8, 3.
 
 def run_config(log, ckpt, scans=2, clusterer=None):
     return {
+        **P.record(),  # the DS-Net stages without refine, as the runs of these tests use
         "data": str(log),
         "stages": {
             "align": {"scans": scans},
@@ -202,7 +203,7 @@ from storage.run import RunStore
 from tasks.methods import get_pipeline
 from tasks.runner import run_stage_plain
 store = RunStore(sys.argv[1])
-run_stage_plain(store, get_pipeline(), "00", "stitch", store.read_run_config("r1"), "r1", force=True)
+run_stage_plain(store, get_pipeline(refine=False), "00", "stitch", store.read_run_config("r1"), "r1", force=True)
 """
 )
 

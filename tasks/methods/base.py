@@ -91,7 +91,9 @@ class TrainOptions(BaseModel):
     epochs: str = Field("10", description="Epochs: N for every stage, or per stage 'a=N,b=M'.")
     device: str = Field("cpu", description="cpu, cuda or cuda:N.")
     resume: bool = Field(False, description="Continue the checkpoint in --out.")
-    init_from: Path | None = Field(None, description="Start from this checkpoint's weights.")
+    init_from: Path | None = Field(
+        None, description="Start from this checkpoint's weights ('bundled': the method's bundled model)."
+    )
     sequences: str | None = Field(None, description="Comma-separated training sequences (default: all).")
     val_data: Path | None = Field(None, description="Validation log root (default: DATA).")
     val_sequences: str | None = Field(None, description="Validation sequences (default: the training ones).")
@@ -135,6 +137,19 @@ class TrainOptions(BaseModel):
                 raise
             raise ValueError(f"--epochs {self.epochs!r}: expected N or stage=N,... with N ≥ 0") from None
         return out
+
+    def start_from(self, method: Method, scans: int = 1) -> Path | None:
+        """``init_from``, with ``bundled`` resolved to ``method``'s bundled checkpoint for k = ``scans``.
+
+        Raises:
+            ValueError: ``bundled`` asked for and the package holds no such model.
+        """
+        if self.init_from is None or str(self.init_from) != "bundled":
+            return self.init_from
+        found = method.bundled_checkpoint(scans)
+        if found is None:
+            raise ValueError(f"--init-from bundled: no bundled {method.name} model for k = {scans}")
+        return found
 
     def names(self, text: str | None) -> list[str] | None:
         """A comma-separated option as a list (None when not given)."""

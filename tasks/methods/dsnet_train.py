@@ -129,12 +129,13 @@ def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None)
             patience=options.patience,
             amp=options.amp,
         )
-        lift = (
-            (options.equivariant, options.pooling) if options.init_from and options.equivariant != 1 else None
-        )
+        from tasks.methods import get_method
+
+        init_from = options.start_from(get_method(), options.scans)
+        lift = (options.equivariant, options.pooling) if init_from and options.equivariant != 1 else None
         trainer = Trainer(
             options.out, config, data.reader, data.sequences, data.val_reader, data.val_sequences,
-            data.label_map, cfg, options.resume, options.init_from, lift,
+            data.label_map, cfg, options.resume, init_from, lift,
         )  # fmt: skip
         card = trainer.run(on_step=on_step if trainer.dist.is_main else None)
     finally:

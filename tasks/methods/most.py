@@ -115,6 +115,7 @@ class Most(Method):
         from dsnet_core.model.presets import get_preset
         from dsnet_core.most.config import MostConfig
         from dsnet_core.train.most import MostTrainConfig, MostTrainer
+        from tasks.methods import get_method
         from tasks.methods.dsnet_train import parse_grid
         from tasks.methods.training import open_training_data
 
@@ -134,9 +135,10 @@ class Most(Method):
             augment=options.augment,
             device=options.device,
         )
+        start = options.start_from(get_method(), 1)
         trainer = MostTrainer(
             options.out, MostConfig(backbone=backbone), data.reader, data.sequences, data.val_reader,
-            data.val_sequences, data.label_map, cfg, options.resume, backbone_from=options.init_from,
+            data.val_sequences, data.label_map, cfg, options.resume, backbone_from=start,
         )  # fmt: skip
         card = trainer.run(on_step=on_step)
         last = card.metrics[-1] if card.metrics else {}

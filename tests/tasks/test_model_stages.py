@@ -203,7 +203,8 @@ from storage.run import RunStore
 from tasks.methods import get_pipeline
 from tasks.runner import run_stage_plain
 store = RunStore(sys.argv[1])
-run_stage_plain(store, get_pipeline(refine=False), "00", "stitch", store.read_run_config("r1"), "r1", force=True)
+p = get_pipeline(refine=False)
+run_stage_plain(store, p, "00", "stitch", store.read_run_config("r1"), "r1", force=True)
 """
 )
 

@@ -5,9 +5,12 @@ What is pinned, and why it is the same on every CPU:
 
 - the scan and label files, byte for byte. The ray casting runs in numba kernels (no fast-math, so
   no reassociation or fused multiply-adds whatever the target) and the C library's ``atan2``, ``log``
-  and ``exp``, which take the same code on every CPU with FMA (all with AVX2 or AVX-512); the
+  and ``exp``, which take the same code on every CPU with AVX2 and FMA (AVX-512 ones included); the
   generator's numpy calls are elementwise arithmetic, ``sin``, ``cos``, ``hypot`` and ``interp``,
-  whose results do not depend on numpy's SIMD dispatch.
+  whose float64 results do not depend on numpy's SIMD dispatch, and the ego poses' 3×3 products
+  go through OpenBLAS, whose kernels for CPUs with FMA (Haswell, Zen, SkylakeX, …) agree. (Pre-FMA
+  kernels round about 1 in 15 pose entries differently by 1 ulp; that has moved no float32 value of
+  these logs.)
 - ``poses.txt``, ``calib.txt`` and ``times.txt`` to 1e-6 (m, or unitless for rotations). They are
   written from OpenBLAS products and inverses (``Tr`` re-orthonormalised by an SVD, ``Tr·P·Tr⁻¹``,
   poses relative to the first), whose last bits depend on the kernel OpenBLAS picks for the CPU

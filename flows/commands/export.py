@@ -15,8 +15,8 @@ def export(
     format: str = typer.Option(
         None,
         "--format",
-        help="semantickitti (sequences/SS/predictions/*.label), folder (SEQ/<scan name>.label), rosbag "
-        "(BAG/<stamp ns>.label) or nuscenes (lidarseg/ and panoptic/ results by sample_data token); "
+        help="semantickitti (.label files in sequences/SS/predictions/), folder (SEQ/<scan name>.label), "
+        "rosbag (BAG/<stamp ns>.label) or nuscenes (lidarseg/ and panoptic/ results by sample_data token); "
         "default: the format of the run's log.",
     ),
     split: str = typer.Option(

@@ -25,7 +25,7 @@ def synth(
         "classic",
         help="Street: classic, residential, arterial, downtown, junction, parking_lot, country, or random "
         "(drawn per sequence). Anything but classic with hdl64/vlp32 also draws the sensor's mounting, "
-        "noise and remission per sequence; each sequence's choices go to sequences/SS/synth.json.",
+        "noise and remission per sequence; each sequence's choices go to synth.json in its folder.",
     ),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""

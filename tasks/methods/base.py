@@ -99,7 +99,7 @@ class TrainOptions(BaseModel):
     val_sequences: str | None = Field(None, description="Validation sequences (default: the training ones).")
     lr: float = Field(1e-3, gt=0, description="Adam learning rate (the start of each stage's schedule).")
     seed: int = Field(0, ge=0, description="Seed of initialisation, shuffling and augmentation.")
-    augment: bool = Field(True, description="Yaw/flip/scale/translation augmentation.")
+    augment: bool = Field(True, description="Yaw, flip, scale and translation augmentation.")
     threads: int = Field(1, ge=1, description="Torch CPU threads.")
 
     @field_validator("device")

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 import typer
 
 from flows.commands import options as o
-from flows.commands.common import errors_exit
+from flows.commands.common import errors_exit, fail
 from tasks.methods import DEFAULT_METHOD
 
 
@@ -57,7 +57,10 @@ def label(
     infer → shift → fuse → stitch|track → score; most: … → most → track → score; dpls: … → prior →
     dpls → shift → fuse → stitch|track → score)."""
     import time
+    from pathlib import Path
 
+    if "://" not in data and not Path(data).expanduser().exists():  # before the heavy imports
+        fail(f"{data}: no such file or folder")
     from flows.commands.label_report import run_report
     from flows.pending import pending_sequences
     from flows.request import LabelRequest, parse_reader_options

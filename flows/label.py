@@ -100,6 +100,9 @@ def task_runner(workers: int | None = None, dask_address: str | None = None):
 
         logging.getLogger("distributed").setLevel(logging.WARNING)
         if dask_address:
+            from flows.services import check_dask_scheduler
+
+            check_dask_scheduler(dask_address)  # once more: the check may have run minutes ago
             return DaskTaskRunner(address=dask_address)
         return DaskTaskRunner(  # scheduler and dashboard on loopback: nothing listens on 0.0.0.0
             cluster_kwargs={

@@ -88,14 +88,18 @@ class LabelRequest(BaseModel):
 
     def check(self) -> None:
         """Check what can be checked before any server or stage starts: the method and the stage
-        names, the log (its format and reader options) and the model the stages name (its card).
+        names, the log (its format and reader options), the model the stages name (its card) and
+        the run store (a folder, or an S3 endpoint that answers to these credentials).
 
         Raises:
-            ValueError, DataFormatError, CheckpointError: naming what is wrong.
+            ValueError, DataFormatError, CheckpointError, StoreError: naming what is wrong.
         """
+        from storage.fs import RootFS
+
         pipeline = self.pipeline()
         self.open_log()
         self.stage_configs(pipeline, self.order(pipeline))
+        RootFS(self.root, self.storage_options).check()
 
     def order(self, pipeline: Pipeline) -> list[str]:
         """The stages this run executes, in order."""

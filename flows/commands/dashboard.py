@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def dashboard(
@@ -18,5 +18,6 @@ def dashboard(
     from flows.dashboard import build_dashboard
 
     with errors_exit():
+        check_output(out, "--out", "file")
         path = build_dashboard(roots, out, title)
     typer.echo(f"wrote dashboard {path.resolve()}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def export(
@@ -30,6 +30,7 @@ def export(
 
     seqs = sequences.split(",") if sequences else None
     with errors_exit():
+        check_output(out, "--out", "folder")
         format = format or default_export_format(root)
     if format not in EXPORT_FORMATS:
         raise typer.BadParameter(f"unknown format {format!r} (available: {', '.join(EXPORT_FORMATS)})")

@@ -79,6 +79,10 @@ def label(
             force=force,
         )
         request.check()
+        if dask_address:  # before the temporary server starts (prefect-dask retries for 30 s)
+            from flows.services import check_dask_scheduler
+
+            check_dask_scheduler(dask_address)
     summary = run_label(request, workers, dask_address, debug=debug)
     print_summary(summary)
     typer.echo(f"wrote run store {run}")

@@ -70,12 +70,14 @@ def check_dask_scheduler(address: str, timeout_s: float = TIMEOUT_S) -> None:
 
     from distributed.comm import connect
     from distributed.comm.addressing import get_address_host_port, parse_address
+    from distributed.comm.registry import get_backend
 
     from dsnet_core.errors import ServiceError
 
     where = f"--dask-address {address}"
     try:
         scheme, _ = parse_address(address)
+        get_backend(scheme)
         host, port = get_address_host_port(address) if scheme in ("tcp", "tls") else (None, None)
     except ValueError as exc:
         raise ServiceError(f"{where}: not a Dask address ({exc}); expected tcp://HOST:PORT") from None

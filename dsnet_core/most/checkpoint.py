@@ -13,7 +13,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 
-from dsnet_core.errors import CheckpointError, CheckpointMismatchError
+from dsnet_core.errors import CheckpointError, CheckpointMismatchError, ConfigError
 from dsnet_core.labels import LabelMap
 from dsnet_core.model.checkpoint import (
     CARD,
@@ -76,9 +76,14 @@ def read_most_card(path: str | Path) -> ModelCard:
             f"not a MOST checkpoint (format {data.get('format')!r}, expected {MOST_FORMAT}){hint}",
         )
     try:
-        return ModelCard(**data)
+        card = ModelCard(**data)
     except TypeError as exc:
         raise CheckpointError(path / CARD, f"model card has unexpected fields: {exc}") from exc
+    try:  # the architecture's error (a grid beyond its bound, a missing field) is the card's
+        MostConfig.from_dict(card.architecture)
+    except (ConfigError, TypeError, KeyError, ValueError, AttributeError) as exc:
+        raise CheckpointError(path / CARD, f"model card architecture is malformed: {exc}") from exc
+    return card
 
 
 def save_most_checkpoint(path: str | Path, model: MostNet, card: ModelCard) -> Path:

@@ -83,7 +83,8 @@ def validation_line(exc) -> str:
         name = "--" + loc[0].replace("_", "-") if len(loc) == 1 else ".".join(loc) or "value"
         shown = err.get("input")
         value = "" if isinstance(shown, dict) or shown is None else f" {shown!r}"
-        parts.append(f"{name}{value}: {err.get('msg', 'invalid')}")
+        msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+        parts.append(msg if msg.startswith(name + " ") else f"{name}{value}: {msg}")
     return "; ".join(parts)
 
 

@@ -50,5 +50,11 @@ def export(
         missing = summary.missing[seq]
         if missing:
             line += f" ({len(missing)} frames without a label: {', '.join(missing[:5])})"
+        removed = summary.removed.get(seq)
+        if removed:
+            line += (
+                f"; removed {len(removed)} .label files an earlier export left for frames this export does "
+                f"not write: {', '.join(removed[:5])}{', …' if len(removed) > 5 else ''}"
+            )
         typer.echo(line)
     typer.echo(f"wrote {format} labels to {where}")

@@ -101,13 +101,13 @@ class LabelRequest(BaseModel):
         from storage.fs import RootFS
 
         pipeline = self.pipeline()
+        RootFS(self.root, self.storage_options).check()  # cheap: before the model card loads torch
         self.open_log()
         for name, config in self.stage_configs(pipeline, self.order(pipeline)).items():
             try:
                 pipeline[name].Config.model_validate(config)
             except ValidationError as exc:
                 raise ValueError(stage_config_line(name, exc)) from None
-        RootFS(self.root, self.storage_options).check()
 
     def order(self, pipeline: Pipeline) -> list[str]:
         """The stages this run executes, in order."""

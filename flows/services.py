@@ -14,6 +14,15 @@ import os
 TIMEOUT_S = 5.0
 
 
+def check_services(dask_address: str | None = None) -> None:
+    """Check the Prefect API at ``PREFECT_API_URL`` (when set) and the Dask scheduler at
+    ``dask_address`` (when given). Raises :class:`~dsnet_core.errors.ServiceError`."""
+    if os.environ.get("PREFECT_API_URL"):
+        check_prefect_api(os.environ["PREFECT_API_URL"])
+    if dask_address:
+        check_dask_scheduler(dask_address)
+
+
 def check_prefect_api(url: str, timeout_s: float = TIMEOUT_S) -> None:
     """Ask ``url``'s ``/health`` (what Prefect's own client asks) once, with a short timeout.
 

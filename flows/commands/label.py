@@ -78,11 +78,10 @@ def label(
             until=until,
             force=force,
         )
-        request.check()
-        if dask_address:  # before the temporary server starts (prefect-dask retries for 30 s)
-            from flows.services import check_dask_scheduler
+        from flows.services import check_services
 
-            check_dask_scheduler(dask_address)
+        check_services(dask_address)  # PREFECT_API_URL and --dask-address, in seconds, before the rest
+        request.check()
     summary = run_label(request, workers, dask_address, debug=debug)
     print_summary(summary)
     typer.echo(f"wrote run store {run}")

@@ -12,12 +12,17 @@ from __future__ import annotations
 import json
 import os
 import posixpath
+import time
 from typing import Any
 
 from storage.errors import StoreAccessError
 
 CONNECT_TIMEOUT_S = 3.0
 READ_TIMEOUT_S = 10.0
+BUSY_RETRIES_S = (0.2, 0.5, 1.0, 2.0)
+"""Waits before asking again when the endpoint answers that it is busy (503 SlowDown, 500): an
+answer that comes back, unlike a refused connection or key, which is final at once."""
+BUSY = ("SlowDown", "reduce your request rate", "ServiceUnavailable", "InternalError", "503", "500")
 _ENV = ("AWS_ENDPOINT_URL", "AWS_ENDPOINT_URL_S3", "AWS_ACCESS_KEY_ID", "AWS_PROFILE")
 _ANSWERED: set[str] = set()
 
@@ -65,7 +70,7 @@ def check_s3(uri: str, path: str, storage_options: dict[str, Any]) -> None:
     bucket, _, prefix = path.partition("/")
     endpoint = endpoint_of(storage_options)
     try:
-        fs.call_s3("list_objects_v2", Bucket=bucket, Prefix=posixpath.join(prefix, ""), MaxKeys=1)
+        _list_one(fs, bucket, prefix)
     except (NoCredentialsError, PartialCredentialsError) as exc:
         raise StoreAccessError(
             uri,
@@ -91,3 +96,18 @@ def check_s3(uri: str, path: str, storage_options: dict[str, Any]) -> None:
     except OSError as exc:
         raise StoreAccessError(uri, f"the S3 endpoint {endpoint} answered: {exc}") from None
     _ANSWERED.add(key)
+
+
+def _list_one(fs, bucket: str, prefix: str) -> None:
+    """One listing of at most one key, asked again (:data:`BUSY_RETRIES_S`) while the endpoint says
+    it is busy."""
+    for wait in (*BUSY_RETRIES_S, None):
+        try:
+            fs.call_s3("list_objects_v2", Bucket=bucket, Prefix=posixpath.join(prefix, ""), MaxKeys=1)
+            return
+        except OSError as exc:
+            if wait is None or isinstance(exc, PermissionError | FileNotFoundError):
+                raise
+            if not any(word in str(exc) for word in BUSY):
+                raise
+            time.sleep(wait)

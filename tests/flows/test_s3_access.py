@@ -141,3 +141,12 @@ def test_a_missing_bucket_is_named_and_a_good_store_is_asked_once(s3_endpoint):
     asked = len(remote._ANSWERED)
     RootFS("s3://dsnet-test/asked-once/other").exists("x")  # same bucket, options, environment
     assert len(remote._ANSWERED) == asked
+
+
+def test_a_busy_endpoint_is_asked_again_not_refused(s3_endpoint):
+    """503 SlowDown is an answer that comes back: the check asks again (a refused key does not)."""
+    from tests.helpers.flaky_s3 import FlakyS3Proxy
+
+    with FlakyS3Proxy(s3_endpoint["AWS_ENDPOINT_URL"], rate=1.0, max_faults=5, seed=0) as proxy:
+        RootFS(f"s3://dsnet-test/busy-{uuid.uuid4().hex[:8]}", {"endpoint_url": proxy.url}).check()
+    assert proxy.faults == 1  # the first listing answered 503, the second (never two in a row) passed

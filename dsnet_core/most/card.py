@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dsnet_core.errors import CheckpointError
+from dsnet_core.errors import CheckpointError, ConfigError
 from dsnet_core.model.card import CARD, ModelCard, card_json
 from dsnet_core.model.card import FORMAT as DSNET_FORMAT
+from dsnet_core.most.config import MostConfig
 
 MOST_FORMAT = "most-checkpoint/1"
 FORMATS = {DSNET_FORMAT: "dsnet", MOST_FORMAT: "most"}
@@ -41,6 +42,11 @@ def read_most_card(path: str | Path) -> ModelCard:
             f"not a MOST checkpoint (format {data.get('format')!r}, expected {MOST_FORMAT}){hint}",
         )
     try:
-        return ModelCard(**data)
+        card = ModelCard(**data)
     except TypeError as exc:
         raise CheckpointError(path / CARD, f"model card has unexpected fields: {exc}") from exc
+    try:  # the architecture's error (a grid beyond its bound, a missing field) is the card's
+        MostConfig.from_dict(card.architecture)
+    except (ConfigError, TypeError, KeyError, ValueError, AttributeError) as exc:
+        raise CheckpointError(path / CARD, f"model card architecture is malformed: {exc}") from exc
+    return card

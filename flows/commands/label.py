@@ -85,6 +85,9 @@ def label(
             until=until,
             force=force,
         )
+        from flows.services import check_services
+
+        check_services(dask_address)  # PREFECT_API_URL and --dask-address, in seconds, before the rest
         request.check()
         pending = pending_sequences(request)
     t0 = time.monotonic()

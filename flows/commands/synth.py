@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def synth(
@@ -30,6 +30,7 @@ def synth(
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
     with errors_exit():
+        check_output(out, "OUT", "folder")
         generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style)
     what = sensor if style == "classic" else f"{style} street, {sensor}"
     typer.echo(f"wrote {sequences} sequence(s) × {frames} frames ({what}) to {out.resolve() / 'sequences'}")

@@ -248,3 +248,22 @@ def test_refine_keeps_the_tracks_of_a_reused_id_apart(synth_log, tmp_path):
         zip(tracks["id"], zip(tracks["joined"], tracks["joined_generation"], strict=True), strict=True)
     )
     assert joined[b] == ([b, REUSED], [0, 1])  # B took its later REUSED part back
+
+
+def test_the_tracked_table_has_a_row_per_hand_out_of_an_id():
+    from tasks.track import _summarise, _track_rows
+
+    summary: dict = {}
+    car = LM.learning_map_inv[CAR]
+    # frame 0: tracks 5 and 7; frame 200: id 5 again, its generation 1 (key 5 | 1 << 16)
+    _summarise(summary, 0, np.array([car | 5 << 16, car | 7 << 16, car | 7 << 16], np.uint32),
+               np.array([5, 7]), np.array([CAR, CAR]))  # fmt: skip
+    _summarise(
+        summary, 200, np.array([car | 5 << 16] * 4, np.uint32), np.array([track_key(5, 1)]), np.array([CAR])
+    )
+    rows = _track_rows(summary, LM)
+    assert [(r["id"], r["generation"], r["first_frame"], r["n_points"]) for r in rows] == [
+        (5, 0, 0, 1),
+        (5, 1, 200, 4),
+        (7, 0, 0, 2),
+    ]

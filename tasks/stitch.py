@@ -146,7 +146,7 @@ class StitchStage(Stage):
                 scores=scores.get(v),
             )
             finished = stitcher.add_volume(volume)
-            warned = warn_reuse(ctx.sequence, self.name, stitcher.ids, int(absolute[w[0]]), warned)
+            warned = warn_reuse(ctx.sequence, self.name, stitcher.ids, int(w[0]), warned)
             for j, ff in enumerate(finished):
                 f = int(absolute[ff.frame])
                 if f not in todo:  # written (and counted) by an interrupted run of this block

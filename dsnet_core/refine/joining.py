@@ -2,7 +2,11 @@
 later are the same object when each one's position, extrapolated across the gap with its own
 velocity (forwards from the end of the first, backwards from the start of the second), lands near
 the other's observed centre. Pairs are chosen one-to-one (an optimal assignment), only within a
-class group; a chain of joined tracks keeps the id of its earliest track."""
+class group; a chain of joined tracks keeps the id of its earliest track.
+
+Tracks are named by their keys ``id | generation << 16`` (:mod:`dsnet_core.temporal.ids`): once a
+temporal stage has reused ids, one id names several tracks at different times, and a join that
+would stretch an id over frames where another track holds it is refused (:func:`keep_ids_apart`)."""
 
 from __future__ import annotations
 
@@ -13,6 +17,7 @@ from scipy.optimize import linear_sum_assignment
 
 from dsnet_core.refine.history import TrackSummary
 from dsnet_core.refine.motion import fit_velocity
+from dsnet_core.temporal.ids import key_generation, key_id
 
 
 @dataclass(frozen=True)
@@ -100,7 +105,8 @@ def join_tracks(
         if cand.size == 0:
             continue
         cost = _costs(tuple(x[a] for x in ends), tuple(x[cand] for x in starts))
-        pairs += [(int(a), int(b), float(c)) for b, c in zip(cand, cost, strict=True) if c <= max_distance]
+        ok = cost <= max_distance
+        pairs += [(int(a), int(b), float(c)) for b, c in zip(cand[ok], cost[ok], strict=True)]
     if not pairs:
         return []
     rows = sorted({p[0] for p in pairs})
@@ -135,3 +141,48 @@ def chain_heads(ids: np.ndarray, joins: list[Join]) -> np.ndarray:
             i = prev[i]
         out[k] = i
     return out
+
+
+def keep_ids_apart(s: TrackSummary, joins: list[Join], keeps_id: np.ndarray) -> tuple[list[Join], int]:
+    """The joins that keep every label id on one track at a time, and how many were refused.
+
+    A chain of joins labels all its tracks with its earliest track's id, from that track's first
+    frame to its last track's last frame. Where ids were reused, another track may hold the same id
+    in that span; a join that would stretch the chain over it is refused (the later track keeps
+    its own id). Without reused ids (every key's generation 0) nothing is refused.
+
+    Args:
+        s: the tracks (keys in ``s.ids``).
+        joins: candidate joins, sorted by the later track's first frame (:func:`join_tracks`).
+        keeps_id: ``(T,) bool`` tracks whose points keep an id (not dissolved).
+    """
+    if not joins or not (key_generation(s.ids) > 0).any():
+        return joins, 0
+    row = {int(k): i for i, k in enumerate(s.ids.tolist())}
+    first, last, label_id = s.first, s.last, key_id(s.ids)
+    prev: dict[int, int] = {}  # later -> earlier, kept joins
+    members: dict[int, set[int]] = {}  # chain head -> its tracks
+    end: dict[int, int] = {}  # chain head -> its last frame
+    kept, refused = [], 0
+    for j in joins:
+        head = j.earlier
+        while head in prev:
+            head = prev[head]
+        h, b = row[head], row[j.later]
+        chain = members.get(head, {head})
+        span_end = max(end.get(head, int(last[h])), int(last[b]))
+        others = np.flatnonzero((label_id == label_id[h]) & keeps_id)
+        clash = [
+            o
+            for o in others.tolist()
+            if int(s.ids[o]) not in chain and int(s.ids[o]) != j.later
+            and first[o] <= span_end and last[o] >= first[h]
+        ]  # fmt: skip
+        if clash:
+            refused += 1
+            continue
+        kept.append(j)
+        prev[j.later] = j.earlier
+        members[head] = chain | {j.later}
+        end[head] = span_end
+    return kept, refused

@@ -109,27 +109,52 @@ def join_tracks(
         pairs += [(int(a), int(b), float(c)) for b, c in zip(cand[ok], cost[ok], strict=True)]
     if not pairs:
         return []
+    joins = [
+        Join(int(s.ids[a]), int(s.ids[b]), int(first[b] - last[a] - 1), c)
+        for a, b, c in _assign(pairs, max_distance)
+    ]
+    id_first = dict(zip(s.ids.tolist(), first.tolist(), strict=True))
+    return sorted(joins, key=lambda j: (id_first[j.later], j.later))
+
+
+def _assign(pairs: list[tuple[int, int, float]], max_distance: float) -> list[tuple[int, int, float]]:
+    """The one-to-one choice of least total cost among candidate ``(earlier, later, cost)`` pairs.
+
+    The candidates form a sparse bipartite graph: each connected group of tracks is assigned on
+    its own (the optimum of a block-diagonal problem is its blocks' optima), so memory and time
+    follow the largest group, not the number of tracks in the sequence squared.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     rows = sorted({p[0] for p in pairs})
     cols = sorted({p[1] for p in pairs})
     ri = {a: i for i, a in enumerate(rows)}
     ci = {b: j for j, b in enumerate(cols)}
-    big = 1e6 * (1.0 + max_distance)
-    cost = np.full((len(rows), len(cols)), big)
+    n = len(rows) + len(cols)
+    edges = coo_matrix(
+        (np.ones(len(pairs)), ([ri[a] for a, _, _ in pairs], [len(rows) + ci[b] for _, b, _ in pairs])),
+        shape=(n, n),
+    )
+    _, component = connected_components(edges, directed=False)
+    groups: dict[int, list[tuple[int, int, float]]] = {}
     for a, b, c in pairs:
-        cost[ri[a], ci[b]] = c
-    r, c = linear_sum_assignment(cost)
-    joins = [
-        Join(
-            int(s.ids[rows[i]]),
-            int(s.ids[cols[j]]),
-            int(first[cols[j]] - last[rows[i]] - 1),
-            float(cost[i, j]),
-        )
-        for i, j in zip(r.tolist(), c.tolist(), strict=True)
-        if cost[i, j] < big
-    ]
-    id_first = dict(zip(s.ids.tolist(), first.tolist(), strict=True))
-    return sorted(joins, key=lambda j: (id_first[j.later], j.later))
+        groups.setdefault(int(component[ri[a]]), []).append((a, b, c))
+    big = 1e6 * (1.0 + max_distance)
+    out = []
+    for group in groups.values():
+        g_rows = sorted({p[0] for p in group})
+        g_cols = sorted({p[1] for p in group})
+        gi = {a: i for i, a in enumerate(g_rows)}
+        gj = {b: j for j, b in enumerate(g_cols)}
+        cost = np.full((len(g_rows), len(g_cols)), big)
+        for a, b, c in group:
+            cost[gi[a], gj[b]] = c
+        r, c = linear_sum_assignment(cost)
+        out += [
+            (g_rows[i], g_cols[j], float(cost[i, j])) for i, j in zip(r, c, strict=True) if cost[i, j] < big
+        ]
+    return out
 
 
 def chain_heads(ids: np.ndarray, joins: list[Join]) -> np.ndarray:

@@ -193,8 +193,13 @@ class FrameLoader:
             self._volume = (v, data)
         data = self._volume[1]
         sel = data["source_frame"] == index
-        out = np.zeros((n, data["probs"].shape[1]), np.uint8)
-        out[data["source_index"][sel]] = data["probs"][sel]
+        probs = data["probs"]
+        if probs.shape[0] == n and sel.all() and np.array_equal(data["source_index"], np.arange(n)):
+            out = probs.view()  # a volume of this one frame in its own order (k = 1): no copy
+            out.flags.writeable = False
+            return out
+        out = np.zeros((n, probs.shape[1]), np.uint8)
+        out[data["source_index"][sel]] = probs[sel]
         return out
 
 

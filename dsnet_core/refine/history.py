@@ -45,7 +45,7 @@ def frame_tracks(
     ids, inv = np.unique(frame.inst[sel], return_inverse=True)
     inv = inv.reshape(-1)
     m = ids.size
-    world = frame.world()[sel]
+    world = frame.world(sel)
     n = np.bincount(inv, minlength=m).astype(np.int64)
     centre = np.stack([np.bincount(inv, weights=world[:, a], minlength=m) for a in range(3)], 1).astype(
         np.float64
@@ -58,7 +58,7 @@ def frame_tracks(
         np.maximum.at(hi[:, a], inv, world[:, a])
     extent = np.hypot(*(hi - lo).T) if m else np.zeros(0)
     use_conf = frame.probs is None
-    weight = range_weights(frame, range_ref)[sel] * confidence.point_weights(frame.inst[sel], use_conf)
+    weight = range_weights(frame, range_ref, sel) * confidence.point_weights(frame.inst[sel], use_conf)
     probs = None if frame.probs is None else frame.probs[sel]
     votes = group_votes(inv, m, frame.sem[sel], probs, weight, n_classes)
     return FrameTracks(frame.index, float(frame.time), ids, n, centre, extent, votes)

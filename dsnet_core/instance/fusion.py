@@ -154,9 +154,9 @@ def _group_stats(inverse, pts, p, k):  # pragma: no cover - compiled
         for a in range(3):
             v = pts[i, a]
             sums[g, a] += v
-            if v < lo[g, a]:
+            if v <= lo[g, a]:  # ties (+0.0, -0.0) take the new value, as np.minimum.at does
                 lo[g, a] = v
-            if v > hi[g, a]:
+            if v >= hi[g, a]:
                 hi[g, a] = v
         if with_p:
             sums[g, 3] += p[i]

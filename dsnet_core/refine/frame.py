@@ -68,19 +68,37 @@ class FrameInput:
         ``rows`` (indices or a mask), those points only (the same values).
 
         Element-wise products and sums (no BLAS), so the result does not depend on the CPU."""
-        p = (self.xyz if rows is None else self.xyz[rows]).astype(np.float64)
-        if self.pose is None:
-            return p
-        m = np.asarray(self.pose, np.float64)
-        out = np.empty_like(p)
-        for r in range(3):
-            out[:, r] = p[:, 0] * m[r, 0] + p[:, 1] * m[r, 1] + p[:, 2] * m[r, 2] + m[r, 3]
+        cols = self.world_columns(rows)
+        out = np.empty((cols[0].size, 3))
+        for r, col in enumerate(cols):
+            out[:, r] = col
         return out
+
+    def world_columns(self, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`world`'s x, y and z as three contiguous ``(N,) float64`` arrays (the same values,
+        computed column by column: ``x·m0 + y·m1 + z·m2 + t`` in that order)."""
+        p = self.xyz if rows is None else self.xyz[rows]
+        x, y, z = (np.ascontiguousarray(p[:, a], dtype=np.float64) for a in range(3))
+        if self.pose is None:
+            return x, y, z
+        m = np.asarray(self.pose, np.float64)
+        out = []
+        for r in range(3):
+            col = x * m[r, 0]
+            col += y * m[r, 1]
+            col += z * m[r, 2]
+            col += m[r, 3]
+            out.append(col)
+        return out[0], out[1], out[2]
 
     def ranges(self, rows: np.ndarray | None = None) -> np.ndarray:
         """``(N,) float64`` distance of each point (of ``rows``) from the sensor, metres."""
-        p = (self.xyz if rows is None else self.xyz[rows]).astype(np.float64)
-        return np.sqrt(p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1] + p[:, 2] * p[:, 2])
+        p = self.xyz if rows is None else self.xyz[rows]
+        x, y, z = (np.ascontiguousarray(p[:, a], dtype=np.float64) for a in range(3))
+        r = x * x
+        r += y * y
+        r += z * z
+        return np.sqrt(r, out=r)
 
 
 def decode_labels(label: np.ndarray, label_map: LabelMap) -> tuple[np.ndarray, np.ndarray]:

@@ -225,7 +225,7 @@ def refine_block(
             voters = _voters(sem, inst, t.static, sets)
             used = voters if takes is None else voters | takes
             rows = np.flatnonzero(used)
-            keys = SortedKeys(grid.keys(frame.world(rows)))
+            keys = SortedKeys(grid.keys_of(*frame.world_columns(rows)))
             weight = range_weights(frame, params.vote.range_ref, rows[voters[rows]])
             weight = weight * plan.confidence.point_weights(frame.inst[voters], frame.probs is None)
             probs = None if frame.probs is None else frame.probs[voters]

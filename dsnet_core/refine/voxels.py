@@ -31,9 +31,17 @@ class VoxelGrid:
     def keys(self, world: np.ndarray) -> np.ndarray:
         """``(N,) int64`` key of the voxel of each point ``(N, 3)`` (metres). Indices are clipped to
         ±2^20 voxels from the origin (315 km at 0.3 m)."""
-        idx = np.floor((np.asarray(world, np.float64) - np.asarray(self.origin, np.float64)) / self.size)
-        idx = np.clip(idx, -_HALF + 1, _HALF - 1).astype(np.int64) + _HALF
-        return (idx[:, 0] << (2 * _BITS)) | (idx[:, 1] << _BITS) | idx[:, 2]
+        world = np.asarray(world, np.float64)
+        return self.keys_of(world[:, 0], world[:, 1], world[:, 2])
+
+    def keys_of(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """:meth:`keys` of points given as three ``(N,)`` float64 coordinate arrays (metres)."""
+        out = None
+        for a, col in enumerate((x, y, z)):
+            idx = (np.asarray(col, np.float64) - np.float64(self.origin[a])) / self.size
+            idx = np.clip(np.floor(idx, out=idx), -_HALF + 1, _HALF - 1, out=idx).astype(np.int64) + _HALF
+            out = idx if out is None else (out << _BITS) | idx
+        return out
 
 
 @dataclass(frozen=True)

@@ -19,10 +19,10 @@ a decode error is reported the same way for items written before records existed
 chunks read as zeros, as before: nothing recorded what was there).
 
 Per-item I/O bypasses zarr's machinery (:class:`_ChunkCodec`): an item is exactly one chunk of each
-array, so reading or writing it is one file read or atomic write and one zstd call, with the same
-chunk keys and bytes zarr reads and writes (zarr's own per-call overhead was ~0.4 ms a read and
+array, so reading or writing it is one file read or atomic write and one zstd (or blosc) call,
+with the same chunk keys and bytes zarr reads and writes (zarr's own per-call overhead was ~0.4 ms a read and
 ~1.4 ms a write of CPU, 10-20 calls per item of a stage). Arrays whose codecs are anything but
-``bytes`` + ``zstd`` go through zarr.
+``bytes`` + ``zstd`` or ``blosc`` go through zarr.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 import zarr
-from zarr.codecs import ZstdCodec
+from zarr.codecs import BloscCodec, ZstdCodec
 
 from storage.contract import StageContract
 from storage.errors import ContractError, DamagedStoreError, StoreError
@@ -65,6 +65,13 @@ def _row_matches(row: np.ndarray, chunk: dict[str, Any]) -> bool:
     return row_crc32(row) == chunk.get("crc32")
 
 
+def _compressor(codec: str, itemsize: int):
+    """The zarr compressor of an :attr:`~storage.contract.ArraySpec.codec`."""
+    if codec == "shuffle-lz4":
+        return BloscCodec(cname="lz4", clevel=5, shuffle="shuffle", typesize=itemsize, blocksize=0)
+    return ZstdCodec(level=ZSTD_LEVEL)
+
+
 def _frame_content_size(data: bytes) -> int | None:
     """The decompressed size a zstd frame's header declares, or None where it declares none (or the
     bytes are no zstd frame: decoding then fails on its own)."""
@@ -80,9 +87,15 @@ def _frame_content_size(data: bytes) -> int | None:
     return value + 256 if size == 2 else value
 
 
+def _blosc_size(data: bytes) -> int | None:
+    """The decompressed size a blosc frame's 16-byte header declares (bytes 4-7), or None."""
+    return int.from_bytes(data[4:8], "little") if len(data) >= 16 else None
+
+
 class _ChunkCodec:
     """Reads and writes whole chunks of one item of a zarr v3 array coded ``bytes`` (little endian)
-    then ``zstd``, chunked one item per chunk, as zarr does (same keys, same bytes), without zarr.
+    then ``zstd`` or ``blosc``, chunked one item per chunk, as zarr does (same keys, same bytes),
+    without zarr.
 
     Args:
         arr: the zarr array.
@@ -91,10 +104,27 @@ class _ChunkCodec:
     """
 
     def __init__(self, arr: zarr.Array, write_empty: bool) -> None:
-        from numcodecs.zstd import Zstd
+        codec = arr.metadata.codecs[1]
+        if isinstance(codec, BloscCodec):
+            import numcodecs.blosc
 
-        zstd = arr.metadata.codecs[1]
-        self.zstd = Zstd(level=zstd.level, checksum=zstd.checksum)
+            # blosc spreads one call over threads when called from the main thread (zarr calls it
+            # from its own pool, where it does not): one thread here too
+            numcodecs.blosc.use_threads = False
+            shuffle = {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}[codec.shuffle.value]
+            self.codec = numcodecs.blosc.Blosc(
+                cname=codec.cname.value,
+                clevel=codec.clevel,
+                shuffle=shuffle,
+                blocksize=codec.blocksize,
+                typesize=codec.typesize,
+            )  # as zarr's BloscCodec configures it
+            self.sized = False  # blosc frames carry their size in their own header
+        else:
+            from numcodecs.zstd import Zstd
+
+            self.codec = Zstd(level=codec.level, checksum=codec.checksum)
+            self.sized = True
         self.dtype = np.dtype(arr.dtype).newbyteorder("<")
         self.row_shape = tuple(arr.shape[1:])
         self.nbytes = int(np.prod(self.row_shape, dtype=np.int64)) * self.dtype.itemsize
@@ -115,7 +145,7 @@ class _ChunkCodec:
         return (
             isinstance(by, BytesCodec)
             and endian in (None, "little")
-            and isinstance(zstd, ZstdCodec)
+            and isinstance(zstd, ZstdCodec | BloscCodec)
             and isinstance(md.chunk_key_encoding, DefaultChunkKeyEncoding)
             and md.chunk_key_encoding.separator == "/"
             and tuple(md.chunk_grid.chunk_shape) == (1, *arr.shape[1:])
@@ -133,22 +163,22 @@ class _ChunkCodec:
         out = np.zeros(self.row_shape, self.dtype) if data is None else np.empty(self.row_shape, self.dtype)
         if data is None:
             return out
-        size = _frame_content_size(data)
+        size = _frame_content_size(data) if self.sized else _blosc_size(data)
         if size is None:  # a frame without its size: decode, then check
-            raw = self.zstd.decode(data)
+            raw = self.codec.decode(data)
             size = len(raw)
             if size == self.nbytes:
                 return np.frombuffer(raw, self.dtype).reshape(self.row_shape).copy()
         if size != self.nbytes:
             raise ValueError(f"it decodes to {size} bytes, not the {self.nbytes} of an item")
-        self.zstd.decode(data, out=out)
+        self.codec.decode(data, out=out)
         return out
 
     def encode(self, row: np.ndarray) -> bytes | None:
         """An item's row -> its chunk's bytes, or None where zarr would store no chunk."""
         if not self.write_empty and not row.any():
             return None
-        return self.zstd.encode(np.ascontiguousarray(row, dtype=self.dtype))
+        return self.codec.encode(np.ascontiguousarray(row, dtype=self.dtype))
 
 
 def _zarr_store(root: RootFS, rel: str, read_only: bool = False):
@@ -227,7 +257,6 @@ class StageArrays:
         group.attrs.update(
             {"stage": contract.stage, "item": contract.item, "max_points": max_points, "dims": dims}
         )
-        zstd = ZstdCodec(level=ZSTD_LEVEL)
         for spec in contract.arrays:
             if spec.name in omit:
                 continue
@@ -238,7 +267,7 @@ class StageArrays:
                 shape=shape,
                 chunks=(1, *shape[1:]),
                 dtype=spec.dtype,
-                compressors=zstd,
+                compressors=_compressor(spec.codec, np.dtype(spec.dtype).itemsize),
                 fill_value=0,
                 attributes={"doc": spec.doc},
             )

@@ -151,9 +151,12 @@ class FrameLoader:
         self.time = dict(zip(t["index"], t["timestamp"], strict=True))
         self.probs = self.align = None
         self.owner: dict[int, int] = {}
+        self.single: set[int] = set()  # volumes of one frame: its points in its own order
         if probs is not None and align is not None:
             self.probs, self.align = ctx.arrays(probs), ctx.arrays(align)
             for v, w in enumerate(ctx.manifest(align).plan["windows"]):
+                if len(w) == 1:
+                    self.single.add(v)
                 for f in w:
                     self.owner.setdefault(int(f), v)
         self._volume: tuple[int, dict] | None = None
@@ -187,6 +190,11 @@ class FrameLoader:
         if self.probs is None or index not in self.owner:
             return None
         v = self.owner[index]
+        if v in self.single:  # a volume of this frame alone holds its points in order (k = 1)
+            probs = self.probs.read_item(v, ["probs"])["probs"]
+            if probs.shape[0] == n:
+                probs.flags.writeable = False
+                return probs
         if self._volume is None or self._volume[0] != v:
             data = self.align.read_item(v, ["source_frame", "source_index"])
             data["probs"] = self.probs.read_item(v, ["probs"])["probs"]
@@ -194,10 +202,6 @@ class FrameLoader:
         data = self._volume[1]
         sel = data["source_frame"] == index
         probs = data["probs"]
-        if probs.shape[0] == n and sel.all() and np.array_equal(data["source_index"], np.arange(n)):
-            out = probs.view()  # a volume of this one frame in its own order (k = 1): no copy
-            out.flags.writeable = False
-            return out
         out = np.zeros((n, probs.shape[1]), np.uint8)
         out[data["source_index"][sel]] = probs[sel]
         return out

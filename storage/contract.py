@@ -21,6 +21,9 @@ import pyarrow as pa
 Dim = int | str
 """A trailing dimension: a fixed size, or a name resolved per run from the plan (``"classes"``)."""
 
+CODECS = ("zstd", "shuffle-lz4")
+"""The chunk codecs an array may declare (:attr:`ArraySpec.codec`)."""
+
 
 @dataclass(frozen=True)
 class ArraySpec:
@@ -34,6 +37,9 @@ class ArraySpec:
             (e.g. ``"classes"``: the model's number of classes), so no dataset fact is baked in.
         optional: may be absent (e.g. labels of a log without ground truth).
         doc: meaning and units.
+        codec: how its chunks are compressed (:data:`CODECS`): ``"zstd"``, or ``"shuffle-lz4"``
+            (byte shuffle then LZ4, blosc) for dense multi-byte values such as coordinates and
+            point indices, where it is both smaller and 3-8x faster than zstd.
     """
 
     name: str
@@ -42,6 +48,11 @@ class ArraySpec:
     trailing: tuple[Dim, ...] = ()
     optional: bool = False
     doc: str = ""
+    codec: str = "zstd"
+
+    def __post_init__(self) -> None:
+        if self.codec not in CODECS:
+            raise ValueError(f"array {self.name!r}: codec {self.codec!r} is not one of {CODECS}")
 
     def resolve(self, dims: Mapping[str, int]) -> tuple[int, ...]:
         """The trailing shape with named sizes filled from ``dims``.

@@ -79,9 +79,15 @@ class AlignStage(Stage):
     Config = AlignConfig
     item = "volume"
     arrays = (
-        ArraySpec("points", "float32", trailing=(4,), doc="x, y, z (m, reference sensor frame), remission"),
-        ArraySpec("source_frame", "int32", doc="frame index (in the sequence) each point came from"),
-        ArraySpec("source_index", "int32", doc="point index in its source scan"),
+        ArraySpec(
+            "points",
+            "float32",
+            trailing=(4,),
+            doc="x, y, z (m, reference sensor frame), remission",
+            codec="shuffle-lz4",
+        ),
+        ArraySpec("source_frame", "int32", doc="frame index (sequence) of each point", codec="shuffle-lz4"),
+        ArraySpec("source_index", "int32", doc="point index in its source scan", codec="shuffle-lz4"),
         ArraySpec("labels", "uint32", optional=True, doc="raw semantic | instance << 16 (ground truth)"),
     )
     tables = (VOLUMES,)

@@ -40,6 +40,8 @@ INSTANCES = TableSpec(
         ("confidence", "confidence"),
     ),
 )
+ROW_FIELDS = ("id", "class_id", "n_points", "agreement", "confidence", "centroid", "box_min", "box_max")
+"""The columns of :data:`INSTANCES` after ``index``, each a field of the core's instance table."""
 
 
 class FuseConfig(StageConfig):
@@ -87,18 +89,8 @@ class FuseStage(Stage):
             fused = fuse(xyz, inf["sem"], inst, things, dequantise_probs(inf["probs"]))
             t = fused.instances
             rows = [
-                {
-                    "index": item,
-                    "id": int(t.id[k]),
-                    "class_id": int(t.class_id[k]),
-                    "n_points": int(t.n_points[k]),
-                    "agreement": float(t.agreement[k]),
-                    "confidence": float(t.confidence[k]),
-                    "centroid": t.centroid[k].tolist(),
-                    "box_min": t.box_min[k].tolist(),
-                    "box_max": t.box_max[k].tolist(),
-                }
-                for k in range(len(t))
+                {"index": item, **dict(zip(ROW_FIELDS, values, strict=True))}
+                for values in zip(*(getattr(t, name).tolist() for name in ROW_FIELDS), strict=True)
             ]
             n = int(xyz.shape[0])
             yield ItemResult(

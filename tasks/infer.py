@@ -88,8 +88,9 @@ def quantise_probs(probs: np.ndarray) -> np.ndarray:
     float16 conversions are several times slower)."""
     import torch
 
-    t = torch.from_numpy(np.ascontiguousarray(probs)).float()
-    return t.mul_(255.0).round_().clamp_(0, 255).to(torch.uint8).numpy()
+    from dsnet_core.model.inference import quantise
+
+    return quantise(torch.from_numpy(np.ascontiguousarray(probs))).numpy()
 
 
 def thing_only(values: np.ndarray, is_thing: np.ndarray, dtype: str) -> np.ndarray:
@@ -124,6 +125,7 @@ class InferStage(Stage):
             "float32",
             trailing=(3,),
             doc="point -> instance centre, metres, on predicted thing points; 0 on stuff (never read)",
+            codec="shuffle-lz4",
         ),
         ArraySpec(
             "features",
@@ -183,17 +185,18 @@ class InferStage(Stage):
         align = ctx.arrays("align")
         thing = label_map.is_thing()
         clouds = (align.read_item(i, ["points"])["points"] for i in items)
-        for item, res in zip(items, predictor.predict_iter(clouds, ctx.config.batch), strict=True):
+        # quantised and thing-only as they are stored (quantise_probs, thing_only), done in the predictor
+        results = predictor.predict_stored_iter(clouds, thing, ctx.config.batch)
+        for item, res in zip(items, results, strict=True):
             n = int(res.sem.shape[0])
-            is_thing = thing[res.sem]
             yield ItemResult(
                 item,
                 arrays={
                     "sem": res.sem.astype(np.uint8),
-                    "probs": quantise_probs(res.probs),
-                    "offsets": thing_only(res.offsets, is_thing, "float32"),
-                    "features": thing_only(res.features, is_thing, "float16"),
+                    "probs": res.probs,
+                    "offsets": res.offsets,
+                    "features": res.features,
                 },
                 n_points=n,
-                counts={"volumes": 1, "points": n, "thing_points": int(is_thing.sum())},
+                counts={"volumes": 1, "points": n, "thing_points": int(res.kept.sum())},
             )

@@ -161,9 +161,12 @@ class FrameLoader:
         self.time = dict(zip(t["index"], t["timestamp"], strict=True))
         self.probs = self.align = None
         self.owner: dict[int, int] = {}
+        self.single: set[int] = set()  # volumes of one frame: its points in its own order
         if probs is not None and align is not None:
             self.probs, self.align = ctx.arrays(probs), ctx.arrays(align)
             for v, w in enumerate(ctx.manifest(align).plan["windows"]):
+                if len(w) == 1:
+                    self.single.add(v)
                 for f in w:
                     self.owner.setdefault(int(f), v)
         self._volume: tuple[int, dict] | None = None
@@ -197,14 +200,20 @@ class FrameLoader:
         if self.probs is None or index not in self.owner:
             return None
         v = self.owner[index]
+        if v in self.single:  # a volume of this frame alone holds its points in order (k = 1)
+            probs = self.probs.read_item(v, ["probs"])["probs"]
+            if probs.shape[0] == n:
+                probs.flags.writeable = False
+                return probs
         if self._volume is None or self._volume[0] != v:
             data = self.align.read_item(v, ["source_frame", "source_index"])
             data["probs"] = self.probs.read_item(v, ["probs"])["probs"]
             self._volume = (v, data)
         data = self._volume[1]
         sel = data["source_frame"] == index
-        out = np.zeros((n, data["probs"].shape[1]), np.uint8)
-        out[data["source_index"][sel]] = data["probs"][sel]
+        probs = data["probs"]
+        out = np.zeros((n, probs.shape[1]), np.uint8)
+        out[data["source_index"][sel]] = probs[sel]
         return out
 
 

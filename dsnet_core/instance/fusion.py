@@ -4,6 +4,10 @@ Every point of an instance takes the most frequent predicted thing class inside 
 (ties: the smaller class id, as ``scipy.stats.mode`` in the reference). Stuff points keep their
 class and instance 0; thing points the clusterer left unassigned keep their class and instance 0.
 The per-instance table carries what a review queue needs.
+
+The per-instance sums (votes, probabilities, positions) and boxes come from one pass over the
+instance points in point order (:func:`_group_stats`): the float64 sums add the same terms in the
+same order as ``np.add.at`` did, so the table is bit-identical to that formulation.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 
@@ -85,14 +90,17 @@ def fuse(
     if probabilities is not None and probabilities.shape[0] != n:
         raise ValueError(f"probabilities {probabilities.shape} do not match {n} points")
     sem = semantic.astype(np.int64)
-    is_thing = np.isin(sem, np.asarray(thing_classes, dtype=np.int64))
+    things = np.asarray(thing_classes, dtype=np.int64)
+    lut = np.zeros(max(int(sem.max(initial=0)), int(things.max(initial=0))) + 1, bool)
+    lut[things[things >= 0]] = True
+    is_thing = lut[np.maximum(sem, 0)] & (sem >= 0)
     inst = np.where(is_thing, instance.astype(np.int64), 0)
     members = np.flatnonzero(inst > 0)
-    ids, inverse = np.unique(inst[members], return_inverse=True)
+    ids, inverse = _dense_ids(inst[members])
     k = ids.size
     n_cls = int(sem.max(initial=0)) + 1
-    votes = np.zeros((k, n_cls), dtype=np.int64)
-    np.add.at(votes, (inverse, sem[members]), 1)
+    sem_m = sem[members]
+    votes = np.bincount(inverse * n_cls + sem_m, minlength=k * n_cls).reshape(k, n_cls)
     winner = votes.argmax(axis=1)  # first maximum = smallest class id on ties
     n_points = votes.sum(axis=1)
     agreement = votes[np.arange(k), winner] / np.maximum(n_points, 1)
@@ -102,19 +110,11 @@ def fuse(
         p = probabilities[members, winner[inverse]].astype(np.float64)
         if probabilities.dtype == np.uint8:
             p /= 255.0
-        confidence = np.zeros(k)
-        np.add.at(confidence, inverse, p)
-        confidence /= np.maximum(n_points, 1)
     else:
-        confidence = np.full(k, np.nan)
-    pts = xyz[members].astype(np.float64)
-    centroid = np.zeros((k, 3))
-    np.add.at(centroid, inverse, pts)
-    centroid /= np.maximum(n_points, 1)[:, None]
-    box_min = np.full((k, 3), np.inf)
-    box_max = np.full((k, 3), -np.inf)
-    np.minimum.at(box_min, inverse, pts)
-    np.maximum.at(box_max, inverse, pts)
+        p = np.zeros(0)
+    sums, box_min, box_max = _group_stats(inverse, np.ascontiguousarray(xyz[members], np.float64), p, k)
+    centroid = sums[:, :3] / np.maximum(n_points, 1)[:, None]
+    confidence = sums[:, 3] / np.maximum(n_points, 1) if probabilities is not None else np.full(k, np.nan)
     table = InstanceTable(
         id=ids.astype(np.int64),
         class_id=winner.astype(np.int64),
@@ -126,3 +126,38 @@ def fuse(
         box_max=box_max.astype(np.float32),
     )
     return FusedLabels(out_sem, inst, table)
+
+
+def _dense_ids(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)`` for positive ids: by a lookup table where the
+    largest id is small (the clusterers' 1..K), else by sorting."""
+    top = int(values.max(initial=0))
+    if top > 4 * values.size + 1024:
+        ids, inverse = np.unique(values, return_inverse=True)
+        return ids, inverse.reshape(-1)
+    present = np.bincount(values, minlength=top + 1) > 0
+    ids = np.flatnonzero(present)
+    remap = np.cumsum(present) - 1
+    return ids, remap[values]
+
+
+@numba.njit(cache=True)
+def _group_stats(inverse, pts, p, k):  # pragma: no cover - compiled
+    """Per group: ``sums (k, 4)`` (x, y, z, p summed in point order; p only where given) and the
+    boxes ``lo, hi (k, 3)`` of the float64 positions ``pts (n, 3)``."""
+    sums = np.zeros((k, 4))
+    lo = np.full((k, 3), np.inf)
+    hi = np.full((k, 3), -np.inf)
+    with_p = p.shape[0] == inverse.shape[0]
+    for i in range(inverse.shape[0]):
+        g = inverse[i]
+        for a in range(3):
+            v = pts[i, a]
+            sums[g, a] += v
+            if v <= lo[g, a]:  # ties (+0.0, -0.0) take the new value, as np.minimum.at does
+                lo[g, a] = v
+            if v >= hi[g, a]:
+                hi[g, a] = v
+        if with_p:
+            sums[g, 3] += p[i]
+    return sums, lo, hi

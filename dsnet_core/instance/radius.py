@@ -7,7 +7,8 @@ draw the same boundaries). A subtree whose box lies wholly inside a radius (with
 margin, so no point of it could fail the pointwise test) contributes its precomputed sum at once;
 one wholly outside (same margin) is skipped; only the rest is visited point by point. Seeds that
 have converged into tight clusters therefore cost about one visit per cluster, not one per pair.
-Sums accumulate in float64.
+Sums accumulate in float64. Values shared by every radius (a broadcast ``values``, as dynamic
+shifting passes) are stored and summarised once, not once per radius (the same additions).
 """
 
 from __future__ import annotations
@@ -50,9 +51,10 @@ class RadiusIndex:
         pts = np.ascontiguousarray(points)
         self.order, self.start, self.end, self.left = build_kdtree(pts, _LEAF_SIZE)
         self.ps = pts[self.order]
+        shared = k == 1 or values.strides[0] == 0  # every radius sums the same values
         self.vs = np.ascontiguousarray(
-            np.transpose(values, (1, 0, 2))[self.order], dtype=np.float64
-        )  # (P, K, C)
+            np.transpose(values[:1] if shared else values, (1, 0, 2))[self.order], dtype=np.float64
+        )  # (P, K, C), or (P, 1, C) for shared values
         self.lo, self.hi, self.node_sums = _summaries(self.ps, self.vs, self.start, self.end, self.left)
 
     def sums(self, queries: np.ndarray) -> np.ndarray:
@@ -158,10 +160,12 @@ def _open_radii(mind2, maxd2, r2_64, jlo, jhi):
 
 @numba.njit(cache=True, inline="always")
 def _add_rows(acc, rows, j0, j1):
-    """``acc[j0:j1] += rows[j0:j1]`` for 2-D arrays, without the temporary a slice sum makes."""
+    """``acc[j0:j1] += rows[j0:j1]`` for 2-D arrays, without the temporary a slice sum makes
+    (``rows`` of one row: that row for every ``j``)."""
+    step = 1 if rows.shape[0] > 1 else 0
     for j in range(j0, j1):
         for ch in range(acc.shape[1]):
-            acc[j, ch] += rows[j, ch]
+            acc[j, ch] += rows[j * step, ch]
 
 
 @numba.njit(cache=True, inline="always")
@@ -169,6 +173,7 @@ def _leaf_sums(ps, vs, r2, s0, s1, qx, qy, qz, jlo, jhi, acc):
     """``acc[j] += vs[s, j]`` for the points ``s0 <= s < s1`` within radius ``j`` of ``(qx, qy, qz)``
     (``jlo <= j <= jhi``): the pointwise test, exact differences in the points' dtype."""
     c = vs.shape[2]
+    step = 1 if vs.shape[1] > 1 else 0  # shared values: one column for every radius
     for s in range(s0, s1):
         dx = ps[s, 0] - qx
         dy = ps[s, 1] - qy
@@ -177,13 +182,13 @@ def _leaf_sums(ps, vs, r2, s0, s1, qx, qy, qz, jlo, jhi, acc):
         j = jhi
         while j >= jlo and d2 <= r2[j]:
             for ch in range(c):
-                acc[j, ch] += vs[s, j, ch]
+                acc[j, ch] += vs[s, j * step, ch]
             j -= 1
 
 
 @numba.njit(cache=True)
 def _query(q, ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
-    k, c = vs.shape[1], vs.shape[2]
+    k, c = r2.shape[0], vs.shape[2]
     stack_node = np.empty(256, dtype=np.int64)
     stack_jlo = np.empty(256, dtype=np.int64)
     stack_jhi = np.empty(256, dtype=np.int64)
@@ -233,7 +238,7 @@ def _self_query(ps, vs, r2, r2_64, lo, hi, sums, start, end, left, out):
     radius adds the data node's sum once to the query node (pushed down to its points at the end),
     a pair wholly beyond it is skipped, and only the rest is split down to point pairs."""
     n_nodes = start.shape[0]
-    k, c = vs.shape[1], vs.shape[2]
+    k, c = r2.shape[0], vs.shape[2]
     pending = np.zeros((n_nodes, k, c))
     acc = np.zeros((ps.shape[0], k, c))
     stack_q = np.empty(512, dtype=np.int64)

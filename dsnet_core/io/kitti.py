@@ -36,16 +36,19 @@ def read_scan(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as f:  # one read into the array (no bytes object, no copy)
+            size = os.fstat(f.fileno()).st_size
+            if size % 16:
+                what = "is not a multiple of 16 (float32 x, y, z, remission): truncated?"
+                raise ScanFormatError(path, f"size {size} bytes {what}")
+            scan = np.empty((size // 16, 4), np.float32)
+            got = f.readinto(memoryview(scan).cast("B"))
     except OSError as exc:
         raise ScanFormatError(path, f"cannot read scan: {exc.strerror or exc}") from exc
-    if len(raw) % 16:
-        raise ScanFormatError(
-            path, f"size {len(raw)} bytes is not a multiple of 16 (float32 x, y, z, remission): truncated?"
-        )
-    scan = np.frombuffer(raw, dtype=np.float32).reshape(-1, 4)
+    if got != size:
+        raise ScanFormatError(path, f"read {got} of its {size} bytes: the file changed while it was read")
     check_points(path, scan)
-    return scan.copy()
+    return scan
 
 
 def write_scan(path: str | Path, scan: np.ndarray) -> None:

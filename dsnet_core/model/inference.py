@@ -34,6 +34,30 @@ class InferenceResult:
     features: np.ndarray
 
 
+@dataclass(frozen=True)
+class StoredResult:
+    """Per-point outputs of one cloud as the ``infer`` stage stores them.
+
+    Attributes:
+        sem: int64 ``(N,)`` predicted train id.
+        probs: uint8 ``(N, C)`` the float16 softmax probabilities quantised (:func:`quantise`).
+        offsets: float32 ``(N, 3)`` metres, on the kept points; 0 elsewhere.
+        features: float16 ``(N, D)`` instance features, on the kept points; 0 elsewhere.
+        kept: bool ``(N,)`` the points whose class was kept.
+    """
+
+    sem: np.ndarray
+    probs: np.ndarray
+    offsets: np.ndarray
+    features: np.ndarray
+    kept: np.ndarray
+
+
+def quantise(probs: torch.Tensor) -> torch.Tensor:
+    """Probabilities in [0, 1] → uint8 ``round(p * 255)`` (a new tensor)."""
+    return probs.to(torch.float32, copy=True).mul_(255.0).round_().clamp_(0, 255).to(torch.uint8)
+
+
 class Predictor:
     """Runs a trained :class:`DSNet` on point clouds.
 
@@ -88,38 +112,11 @@ class Predictor:
 
     def predict_batch(self, clouds: list[np.ndarray]) -> list[InferenceResult]:
         """Several clouds in one forward pass (batch index per cloud; no cross-talk)."""
-        tensors = []
-        for i, pts in enumerate(clouds):
-            arr = np.asarray(pts)
-            if arr.ndim != 2 or arr.shape[1] < 4 or not np.isfinite(arr[:, :4]).all():
-                raise DataFormatError(
-                    f"<cloud {i}>", f"expected finite float (N, 4) points, got shape {arr.shape}"
-                )
-            tensors.append(torch.as_tensor(arr[:, :4], dtype=torch.float32, device=self.device))
         results: list[InferenceResult] = []
-        nonempty = [t for t in tensors if t.shape[0] > 0]
-        with torch.inference_mode():
-            out = tta_forward(self.model, nonempty, self.tta) if nonempty else None
-        per_voxel = None
-        if out is not None and self.tta.is_identity and out.voxel_logits is not None:
-            # every point takes its voxel's logits: softmax and argmax once per voxel (~3x fewer rows)
-            vlogits = out.voxel_logits.float()
-            per_voxel = (torch.softmax(vlogits, dim=1).to(torch.float16), vlogits[:, 1:].argmax(dim=1) + 1)
-        start = 0
-        for t in tensors:
-            n = t.shape[0]
+        for n, out, sl, probs, sem in self._forward(clouds):
             if n == 0:
                 results.append(self._empty())
                 continue
-            sl = slice(start, start + n)
-            start += n
-            if per_voxel is not None:
-                vox = out.point_to_voxel[sl]
-                probs, sem = (v.index_select(0, vox) for v in per_voxel)
-            else:
-                logits = out.logits[sl].float()
-                probs = torch.softmax(logits, dim=1).to(torch.float16)
-                sem = logits[:, 1:].argmax(dim=1) + 1
             # float16 conversions in torch: numpy's are scalar loops, ~0.1 s per 120k × 32 array
             results.append(
                 InferenceResult(
@@ -130,6 +127,79 @@ class Predictor:
                 )
             )
         return results
+
+    def predict_stored(self, clouds: list[np.ndarray], keep: np.ndarray) -> list[StoredResult]:
+        """:meth:`predict_batch` as the ``infer`` stage stores it: probabilities quantised
+        (:func:`quantise`, once per voxel where every point takes its voxel's), offsets and features
+        on the points whose class ``keep`` (bool ``(C,)``) marks, zero elsewhere. The same values as
+        quantising and masking :meth:`predict_batch`'s results, with less work."""
+        results: list[StoredResult] = []
+        for n, out, sl, probs, sem in self._forward(clouds, quantised=True):
+            if n == 0:
+                e = self._empty()
+                probs_q = e.probs.astype(np.uint8)
+                results.append(StoredResult(e.sem, probs_q, e.offsets, e.features, np.zeros(0, bool)))
+                continue
+            sem_np = sem.cpu().numpy().astype(np.int64)
+            kept = keep[sem_np]
+            rows = torch.from_numpy(np.flatnonzero(kept)).to(self.device)
+            offsets = np.zeros((n, 3), np.float32)
+            features = np.zeros((n, out.features.shape[1]), np.float16)
+            offsets[kept] = out.offsets[sl].index_select(0, rows).float().cpu().numpy()
+            features[kept] = out.features[sl].index_select(0, rows).to(torch.float16).cpu().numpy()
+            results.append(StoredResult(sem_np, probs.cpu().numpy(), offsets, features, kept))
+        return results
+
+    def _forward(self, clouds: list[np.ndarray], quantised: bool = False):
+        """One forward pass over ``clouds``; per cloud ``(n, out, rows of out, probs, sem)``: float16
+        probabilities (uint8 :func:`quantise` ones with ``quantised``) and classes per point."""
+        tensors = []
+        for i, pts in enumerate(clouds):
+            arr = np.asarray(pts)
+            if arr.ndim != 2 or arr.shape[1] < 4 or not np.isfinite(arr[:, :4]).all():
+                raise DataFormatError(
+                    f"<cloud {i}>", f"expected finite float (N, 4) points, got shape {arr.shape}"
+                )
+            tensors.append(torch.as_tensor(arr[:, :4], dtype=torch.float32, device=self.device))
+        nonempty = [t for t in tensors if t.shape[0] > 0]
+        with torch.inference_mode():
+            out = tta_forward(self.model, nonempty, self.tta) if nonempty else None
+        per_voxel = None
+        if out is not None and self.tta.is_identity and out.voxel_logits is not None:
+            # every point takes its voxel's logits: softmax and argmax once per voxel (~3x fewer rows)
+            vlogits = out.voxel_logits.float()
+            vprobs = torch.softmax(vlogits, dim=1).to(torch.float16)
+            per_voxel = (quantise(vprobs) if quantised else vprobs, vlogits[:, 1:].argmax(dim=1) + 1)
+        start = 0
+        for t in tensors:
+            n = t.shape[0]
+            if n == 0:
+                yield 0, None, None, None, None
+                continue
+            sl = slice(start, start + n)
+            start += n
+            if per_voxel is not None:
+                vox = out.point_to_voxel[sl]
+                probs, sem = (v.index_select(0, vox) for v in per_voxel)
+            else:
+                logits = out.logits[sl].float()
+                probs = torch.softmax(logits, dim=1).to(torch.float16)
+                probs = quantise(probs) if quantised else probs
+                sem = logits[:, 1:].argmax(dim=1) + 1
+            yield n, out, sl, probs, sem
+
+    def predict_stored_iter(
+        self, clouds: Iterable[np.ndarray], keep: np.ndarray, batch_size: int = 1
+    ) -> Iterator[StoredResult]:
+        """Stream :meth:`predict_stored` results, ``batch_size`` clouds per forward pass."""
+        buf: list[np.ndarray] = []
+        for pts in clouds:
+            buf.append(pts)
+            if len(buf) == batch_size:
+                yield from self.predict_stored(buf, keep)
+                buf = []
+        if buf:
+            yield from self.predict_stored(buf, keep)
 
     def predict_iter(self, clouds: Iterable[np.ndarray], batch_size: int = 1) -> Iterator[InferenceResult]:
         """Stream results for an iterable of clouds, ``batch_size`` clouds per forward pass."""

@@ -64,23 +64,42 @@ class FrameInput:
     def n_points(self) -> int:
         return int(self.xyz.shape[0])
 
-    def world(self) -> np.ndarray:
-        """``(N, 3) float64`` points in the world frame (the sensor frame without a pose).
+    def world(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """``(N, 3) float64`` points in the world frame (the sensor frame without a pose); with
+        ``rows`` (indices or a mask), those points only (the same values).
 
         Element-wise products and sums (no BLAS), so the result does not depend on the CPU."""
-        p = self.xyz.astype(np.float64)
-        if self.pose is None:
-            return p
-        m = np.asarray(self.pose, np.float64)
-        out = np.empty_like(p)
-        for r in range(3):
-            out[:, r] = p[:, 0] * m[r, 0] + p[:, 1] * m[r, 1] + p[:, 2] * m[r, 2] + m[r, 3]
+        cols = self.world_columns(rows)
+        out = np.empty((cols[0].size, 3))
+        for r, col in enumerate(cols):
+            out[:, r] = col
         return out
 
-    def ranges(self) -> np.ndarray:
-        """``(N,) float64`` distance of each point from the sensor, metres."""
-        p = self.xyz.astype(np.float64)
-        return np.sqrt(p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1] + p[:, 2] * p[:, 2])
+    def world_columns(self, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`world`'s x, y and z as three contiguous ``(N,) float64`` arrays (the same values,
+        computed column by column: ``x·m0 + y·m1 + z·m2 + t`` in that order)."""
+        p = self.xyz if rows is None else self.xyz[rows]
+        x, y, z = (np.ascontiguousarray(p[:, a], dtype=np.float64) for a in range(3))
+        if self.pose is None:
+            return x, y, z
+        m = np.asarray(self.pose, np.float64)
+        out = []
+        for r in range(3):
+            col = x * m[r, 0]
+            col += y * m[r, 1]
+            col += z * m[r, 2]
+            col += m[r, 3]
+            out.append(col)
+        return out[0], out[1], out[2]
+
+    def ranges(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """``(N,) float64`` distance of each point (of ``rows``) from the sensor, metres."""
+        p = self.xyz if rows is None else self.xyz[rows]
+        x, y, z = (np.ascontiguousarray(p[:, a], dtype=np.float64) for a in range(3))
+        r = x * x
+        r += y * y
+        r += z * z
+        return np.sqrt(r, out=r)
 
 
 def decode_labels(label: np.ndarray, label_map: LabelMap) -> tuple[np.ndarray, np.ndarray]:
@@ -104,11 +123,14 @@ def quantise(x: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(np.asarray(x, np.float64) * Q), 1, Q).astype(np.int64)
 
 
-def range_weights(frame: FrameInput, range_ref: float | None) -> np.ndarray:
-    """``(N,) int64`` 1..255: full weight within ``range_ref`` metres, ``range_ref / range`` beyond."""
+def range_weights(frame: FrameInput, range_ref: float | None, rows: np.ndarray | None = None) -> np.ndarray:
+    """``(N,) int64`` 1..255: full weight within ``range_ref`` metres, ``range_ref / range`` beyond
+    (of the points ``rows`` only, where given)."""
     if range_ref is None:
-        return np.full(frame.n_points, Q, np.int64)
-    r = frame.ranges()
+        rows = np.asarray(rows) if rows is not None else None
+        n = frame.n_points if rows is None else int(rows.sum() if rows.dtype == bool else rows.size)
+        return np.full(n, Q, np.int64)
+    r = frame.ranges(rows)
     return quantise(np.minimum(1.0, range_ref / np.maximum(r, 1e-6)))
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dsnet_core.refine.frame import Confidence, FrameInput, range_weights
-from dsnet_core.refine.kernels import group_votes
+from dsnet_core.refine.kernels import group_box, group_votes
 
 
 @dataclass(frozen=True)
@@ -45,20 +45,16 @@ def frame_tracks(
     ids, inv = np.unique(frame.inst[sel], return_inverse=True)
     inv = inv.reshape(-1)
     m = ids.size
-    world = frame.world()[sel]
+    world = frame.world_columns(sel)
     n = np.bincount(inv, minlength=m).astype(np.int64)
-    centre = np.stack([np.bincount(inv, weights=world[:, a], minlength=m) for a in range(3)], 1).astype(
+    centre = np.stack([np.bincount(inv, weights=world[a], minlength=m) for a in range(3)], 1).astype(
         np.float64
     )
     centre /= np.maximum(n, 1)[:, None]
-    lo = np.full((m, 2), np.inf)
-    hi = np.full((m, 2), -np.inf)
-    for a in range(2):
-        np.minimum.at(lo[:, a], inv, world[:, a])
-        np.maximum.at(hi[:, a], inv, world[:, a])
+    lo, hi = group_box(inv, m, world[0], world[1])
     extent = np.hypot(*(hi - lo).T) if m else np.zeros(0)
     use_conf = frame.probs is None
-    weight = range_weights(frame, range_ref)[sel] * confidence.point_weights(frame.inst[sel], use_conf)
+    weight = range_weights(frame, range_ref, sel) * confidence.point_weights(frame.inst[sel], use_conf)
     probs = None if frame.probs is None else frame.probs[sel]
     votes = group_votes(inv, m, frame.sem[sel], probs, weight, n_classes)
     return FrameTracks(frame.index, float(frame.time), ids, n, centre, extent, votes)

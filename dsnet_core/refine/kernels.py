@@ -126,3 +126,36 @@ def accumulate(
     """
     if target.size and keys.size:
         _accumulate(target, keys, cls, val, acc, frames)
+
+
+@numba.njit(cache=True)
+def _group_box(group, x, y, lo, hi):  # pragma: no cover - compiled
+    for p in range(group.shape[0]):
+        g = group[p]
+        # ties (+0.0 and -0.0) take the new value, as np.minimum.at / np.maximum.at do
+        if x[p] <= lo[g, 0]:
+            lo[g, 0] = x[p]
+        if x[p] >= hi[g, 0]:
+            hi[g, 0] = x[p]
+        if y[p] <= lo[g, 1]:
+            lo[g, 1] = y[p]
+        if y[p] >= hi[g, 1]:
+            hi[g, 1] = y[p]
+
+
+def group_box(
+    group: np.ndarray, n_groups: int, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per group the smallest and largest ``x`` and ``y`` (``(n_groups, 2) float64`` each; inf and
+    -inf for an empty group), as ``np.minimum.at`` / ``np.maximum.at`` give them, in one pass.
+
+    Args:
+        group: ``(N,) int64`` group of each point, 0..n_groups-1.
+        x, y: ``(N,) float64`` finite coordinates.
+    """
+    lo = np.full((n_groups, 2), np.inf)
+    hi = np.full((n_groups, 2), -np.inf)
+    if group.size:
+        _group_box(np.ascontiguousarray(group, np.int64), np.ascontiguousarray(x, np.float64),
+                   np.ascontiguousarray(y, np.float64), lo, hi)  # fmt: skip
+    return lo, hi

@@ -28,7 +28,7 @@ from dsnet_core.refine.frame import Confidence, FrameInput, range_weights
 from dsnet_core.refine.ground import GroundSegmenter, ground_correction
 from dsnet_core.refine.history import TrackHistory, frame_tracks
 from dsnet_core.refine.params import RefineParams
-from dsnet_core.refine.voxels import FrameVotes, VoxelGrid, frame_votes, window_consensus
+from dsnet_core.refine.voxels import FrameVotes, SortedKeys, VoxelGrid, grouped_votes, window_consensus
 from dsnet_core.temporal.ids import key_id
 
 
@@ -121,7 +121,38 @@ class _Pending:
     inst: np.ndarray
     by_track: np.ndarray
     takers: np.ndarray
-    keys: np.ndarray
+    groups: tuple[np.ndarray, np.ndarray]  # the takers' voxels: sorted unique keys, inverse
+    dissolved: int  # dissolved tracks with points in the frame
+
+
+@dataclass(frozen=True)
+class _Tracked:
+    """A frame after its tracks' decisions: ``sem``, ``inst`` ``(N,) int64``, ``static`` and
+    ``changed`` ``(N,) bool``, and the points with a known track (``points``) with their rows in
+    the decision table (``rows``)."""
+
+    sem: np.ndarray
+    inst: np.ndarray
+    static: np.ndarray
+    changed: np.ndarray
+    points: np.ndarray
+    rows: np.ndarray
+
+
+def _apply(frame: FrameInput, d: TrackDecisions) -> _Tracked:
+    """:func:`apply_tracks`, looking up only the points with an id."""
+    nz = np.flatnonzero(frame.inst > 0)
+    row = d.lookup(frame.inst[nz])
+    has = row >= 0
+    points, rows = nz[has], row[has]
+    sem, inst = frame.sem.copy(), frame.inst.copy()
+    inst[points] = d.final_id[rows]
+    cls = d.class_id[rows]
+    sem[points[cls >= 0]] = cls[cls >= 0]
+    static = np.zeros(inst.shape, bool)
+    static[points] = d.static[rows]
+    changed = (sem != frame.sem) | (key_id(inst) != key_id(frame.inst))
+    return _Tracked(sem, inst, static, changed, points, rows)
 
 
 def apply_tracks(
@@ -133,14 +164,8 @@ def apply_tracks(
         ``sem (N,) int64``, ``inst (N,) int64``, ``static (N,) bool`` (points of static or
         dissolved tracks) and ``changed (N,) bool``.
     """
-    row = d.lookup(frame.inst)
-    has = row >= 0
-    sem, inst = frame.sem.copy(), frame.inst.copy()
-    inst[has] = d.final_id[row[has]]
-    cls = d.gather("class_id", row, -1)
-    sem[cls >= 0] = cls[cls >= 0]
-    static = d.gather("static", row, False)
-    return sem, inst, static, (sem != frame.sem) | (key_id(inst) != key_id(frame.inst))
+    t = _apply(frame, d)
+    return t.sem, t.inst, t.static, t.changed
 
 
 def _voters(sem: np.ndarray, inst: np.ndarray, static: np.ndarray, sets: ClassSets) -> np.ndarray:
@@ -186,60 +211,72 @@ def refine_block(
     voting = params.vote.enabled and plan.world
     needed = [f for f in plan.frames if todo[0] - w <= f <= todo[-1] + w] if voting else todo
     grid = VoxelGrid(params.vote.voxel, plan.origin)
-    d = plan.decisions
-    later = d.lookup(np.asarray([j.later for j in d.joins], np.int64))
-    joins_at = dict(zip(*np.unique(d.first[later], return_counts=True), strict=True)) if d.joins else {}
     votes: deque[FrameVotes] = deque()
     pending: deque[_Pending] = deque()
     wanted = set(todo)
+    joined = _joins_by_frame(plan.decisions)
+    none = (np.zeros(0, np.int64), np.zeros(0, np.int64))
     for k, g in enumerate(needed):
         frame = load(g)
         if frame.index != g:
             raise ValueError(f"load({g}) returned frame {frame.index}")
-        sem, inst, static, by_track = apply_tracks(frame, plan.decisions)
-        world = frame.world() if voting else None
+        t = _apply(frame, plan.decisions)
+        sem, inst = t.sem, t.inst
+        takes = (inst == 0) & ~sets.ignore[sem] if voting and g in wanted else None
         if voting:
-            voters = _voters(sem, inst, static, sets)
-            weight = range_weights(frame, params.vote.range_ref)[voters]
+            # one sort of the voxel keys of every voter and taker serves both groupings
+            voters = _voters(sem, inst, t.static, sets)
+            used = voters if takes is None else voters | takes
+            rows = np.flatnonzero(used)
+            keys = SortedKeys(grid.keys_of(*frame.world_columns(rows)))
+            weight = range_weights(frame, params.vote.range_ref, rows[voters[rows]])
             weight = weight * plan.confidence.point_weights(frame.inst[voters], frame.probs is None)
             probs = None if frame.probs is None else frame.probs[voters]
+            uniq, inv = keys.groups(voters[rows])
             votes.append(
-                frame_votes(g, grid.keys(world[voters]), sem[voters], probs, weight, sets.num_classes,
-                            params.vote.top_k)
-            )  # fmt: skip
+                grouped_votes(g, uniq, inv, sem[voters], probs, weight, sets.num_classes, params.vote.top_k)
+            )
         if g in wanted:
-            takers = np.flatnonzero((inst == 0) & ~sets.ignore[sem]) if voting else np.zeros(0, np.int64)
-            keys = grid.keys(world[takers]) if voting else np.zeros(0, np.int64)
-            pending.append(_Pending(frame, sem, inst, by_track, takers, keys))
+            takers = np.flatnonzero(takes) if takes is not None else np.zeros(0, np.int64)
+            groups = keys.groups(takes[rows]) if takes is not None else none
+            dissolved = np.unique(frame.inst[t.points[plan.decisions.dissolved[t.rows]]]).size
+            pending.append(_Pending(frame, sem, inst, t.changed, takers, groups, dissolved))
         last = k == len(needed) - 1
         while pending and (last or pending[0].frame.index + w <= g):
             p = pending.popleft()
             window = [v for v in votes if abs(v.index - p.frame.index) <= w]
-            yield _finish(p, window, plan, sets, params, ground, int(joins_at.get(p.frame.index, 0)))
+            yield _finish(p, window, sets, params, ground, joined.get(p.frame.index, 0))
             keep_from = (pending[0].frame.index if pending else g + 1) - w
             while votes and votes[0].index < keep_from:
                 votes.popleft()
 
 
+def _joins_by_frame(d: TrackDecisions) -> dict[int, int]:
+    """``{frame: joins whose later track starts there}``."""
+    if not d.joins:
+        return {}
+    later = d.lookup(np.asarray([j.later for j in d.joins], np.int64))
+    firsts = d.first[later].tolist()
+    return {int(f): firsts.count(f) for f in set(firsts)}
+
+
 def _finish(
     p: _Pending,
     window: list[FrameVotes],
-    plan: RefinePlan,
     sets: ClassSets,
     params: RefineParams,
     ground: GroundSegmenter | None,
     joined: int,
 ) -> RefinedFrame:
-    """Static vote (and ground prior) on one pending frame, and its change record (``joined``: joins
-    whose later track starts in the frame)."""
+    """Static vote (and ground prior) on one pending frame, and its change record."""
     frame, sem, inst = p.frame, p.sem.copy(), p.inst
     by_static = np.zeros(sem.size, bool)
     if p.takers.size:
-        uniq, inv = np.unique(p.keys, return_inverse=True)
+        uniq, inv = p.groups
         c = window_consensus(uniq, window, sets.num_classes)
         v = params.vote
         ok = c.supported(v.min_frames, v.min_share, v.min_votes)
-        cls = np.where(ok, c.cls, -1)[inv.reshape(-1)]
+        cls = np.where(ok, c.cls, -1)[inv]
         take = (cls >= 0) & sets.stuff[np.maximum(cls, 0)] & (cls != sem[p.takers])
         sem[p.takers[take]] = cls[take]
         by_static[p.takers[take]] = True
@@ -249,11 +286,15 @@ def _finish(
         sem, by_ground = ground_correction(
             sem, inst, frame.probs, verdict, sets, params.ground.max_confidence, frozen=by_static
         )
-    d = plan.decisions
-    row = d.lookup(frame.inst)
-    dissolved = np.unique(frame.inst[d.gather("dissolved", row, False)]).size
     change = frame_change(
-        frame.index, (frame.sem, frame.inst), (sem, inst), p.by_track, by_static, by_ground, joined, dissolved
+        frame.index,
+        (frame.sem, frame.inst),
+        (sem, inst),
+        p.by_track,
+        by_static,
+        by_ground,
+        joined,
+        p.dissolved,
     )
     return RefinedFrame(frame.index, sem, inst, change)
 

@@ -31,9 +31,17 @@ class VoxelGrid:
     def keys(self, world: np.ndarray) -> np.ndarray:
         """``(N,) int64`` key of the voxel of each point ``(N, 3)`` (metres). Indices are clipped to
         ±2^20 voxels from the origin (315 km at 0.3 m)."""
-        idx = np.floor((np.asarray(world, np.float64) - np.asarray(self.origin, np.float64)) / self.size)
-        idx = np.clip(idx, -_HALF + 1, _HALF - 1).astype(np.int64) + _HALF
-        return (idx[:, 0] << (2 * _BITS)) | (idx[:, 1] << _BITS) | idx[:, 2]
+        world = np.asarray(world, np.float64)
+        return self.keys_of(world[:, 0], world[:, 1], world[:, 2])
+
+    def keys_of(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """:meth:`keys` of points given as three ``(N,)`` float64 coordinate arrays (metres)."""
+        out = None
+        for a, col in enumerate((x, y, z)):
+            idx = (np.asarray(col, np.float64) - np.float64(self.origin[a])) / self.size
+            idx = np.clip(np.floor(idx, out=idx), -_HALF + 1, _HALF - 1, out=idx).astype(np.int64) + _HALF
+            out = idx if out is None else (out << _BITS) | idx
+        return out
 
 
 @dataclass(frozen=True)
@@ -78,9 +86,52 @@ def frame_votes(
         k: classes kept per voxel.
     """
     uniq, inv = np.unique(keys, return_inverse=True)
-    sums = group_votes(inv.reshape(-1), uniq.size, sem, probs, weight, n_classes)
+    return grouped_votes(index, uniq, inv.reshape(-1), sem, probs, weight, n_classes, k)
+
+
+def grouped_votes(
+    index: int,
+    uniq: np.ndarray,
+    inv: np.ndarray,
+    sem: np.ndarray,
+    probs: np.ndarray | None,
+    weight: np.ndarray,
+    n_classes: int,
+    k: int,
+) -> FrameVotes:
+    """:func:`frame_votes` of voters already grouped by voxel: ``uniq`` ``(U,) int64`` their sorted
+    voxel keys and ``inv`` ``(V,) int64`` each voter's position in ``uniq``."""
+    sums = group_votes(inv, uniq.size, sem, probs, weight, n_classes)
     cls, val = top_k(sums, k)
     return FrameVotes(index, uniq, cls, val)
+
+
+class SortedKeys:
+    """The voxel keys of some points of a frame, sorted once, from which the ``np.unique(keys[rows],
+    return_inverse=True)`` of any subset of them follows in linear time (the same arrays).
+
+    Args:
+        keys: ``(P,) int64``.
+    """
+
+    def __init__(self, keys: np.ndarray) -> None:
+        self.n = keys.size
+        self.order = np.argsort(keys)
+        self.sorted = keys[self.order]
+
+    def groups(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(uniq (U,) int64, inverse (M,) int64)`` of ``keys[mask]`` (``mask`` ``(P,) bool``), as
+        ``np.unique(keys[mask], return_inverse=True)`` returns them."""
+        sel = mask[self.order]
+        keys = self.sorted[sel]
+        if keys.size == 0:
+            return keys, np.zeros(0, np.int64)
+        first = np.empty(keys.size, bool)
+        first[0] = True
+        np.not_equal(keys[1:], keys[:-1], out=first[1:])
+        full = np.empty(self.n, np.int64)
+        full[self.order[sel]] = np.cumsum(first) - 1
+        return keys[first], full[mask]
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,9 @@ def test_an_injected_full_disk_in_the_model_stages_is_one_line_then_resumes(
 ):
     import zarr.storage._local as local
 
-    real_put, calls = local._put, []
+    from storage.fs import RootFS
+
+    real_put, real_write, calls = local._put, RootFS.write_bytes, []
 
     def full_disk_in_infer(path, value, exclusive=False):
         if "/infer/arrays.zarr/" in str(path) and "/c/" in str(path):
@@ -73,7 +75,14 @@ def test_an_injected_full_disk_in_the_model_stages_is_one_line_then_resumes(
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         return real_put(path, value, exclusive)
 
+    def full_disk_in_infer_chunks(root, rel, data):  # item chunks are written without zarr
+        if "/infer/arrays.zarr/" in rel and "/c/" in rel:
+            calls.append(rel)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_write(root, rel, data)
+
     monkeypatch.setattr(local, "_put", full_disk_in_infer)
+    monkeypatch.setattr(RootFS, "write_bytes", full_disk_in_infer_chunks)
     run = tmp_path / "run"
     res = CliRunner().invoke(app, _args(log, run, ckpt))
     assert res.exit_code == 2, res.output
@@ -84,6 +93,7 @@ def test_an_injected_full_disk_in_the_model_stages_is_one_line_then_resumes(
     ]
     assert len(calls) == 1  # not retried: a full disk is no transient hiccup
     monkeypatch.setattr(local, "_put", real_put)  # space freed
+    monkeypatch.setattr(RootFS, "write_bytes", real_write)
     res = CliRunner().invoke(app, _args(log, run, ckpt))
     assert res.exit_code == 0, res.output
     assert _labels(run, tmp_path / "out") == reference

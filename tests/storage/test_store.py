@@ -131,6 +131,92 @@ def test_padded_arrays_round_trip_and_done_last(tmp_path):
     assert VOLUME.array("labels").optional
 
 
+def test_item_chunks_are_zarrs_both_ways(tmp_path):
+    """Per-item reads and writes bypass zarr (storage.arrays._ChunkCodec) with zarr's keys and bytes:
+    zarr reads what they write and they read what zarr writes, an empty item stores no n_points
+    chunk as zarr does not, and a chunk of another size is damage, never reshaped or padded."""
+    import zarr
+
+    from storage.arrays import ZSTD_LEVEL
+
+    store = RunStore(tmp_path)
+    arrays = store.create_arrays("00", VOLUME, 3, 5, omit=("labels",), dims={"classes": 3})
+    assert set(arrays._direct) == {"points", "source_frame", "source_index", "probs", "n_points", "done"}
+    rng = np.random.default_rng(0)
+    vals = {"points": rng.normal(size=(4, 4)), "source_frame": np.arange(4), "source_index": -np.arange(4),
+            "probs": rng.integers(0, 256, (4, 3))}  # fmt: skip
+    arrays.write_item(0, vals, 4)
+    arrays.write_item(1, {k: v[:0] for k, v in vals.items()}, 0)
+    base = tmp_path / "sequences/00/align/arrays.zarr"
+    group = zarr.open_group(base, mode="r")
+    assert group["points"].metadata.codecs[1].level == ZSTD_LEVEL
+    assert np.array_equal(group["points"][0, :4], vals["points"].astype(np.float32))
+    assert np.array_equal(group["probs"][0, :4], vals["probs"]) and not group["probs"][0, 4:].any()
+    assert group["n_points"][:].tolist() == [4, 0, 0] and group["done"][:].tolist() == [1, 1, 0]
+    assert not (base / "n_points/c/1").exists()  # zarr stores no chunk equal to the fill value
+    assert (base / "points/c/1/0/0").exists()  # the stage's arrays are stored whatever they hold
+
+    # an item zarr wrote (another zstd level) reads back the same through the direct path
+    zgroup = zarr.open_group(base, mode="r+")
+    zgroup["source_index"][2] = np.arange(5, dtype=np.int32) * 7
+    direct = store.arrays("00", VOLUME)._get("source_index", 2)
+    assert direct.tolist() == [0, 7, 14, 21, 28] and direct.flags.writeable
+
+    # arrays coded otherwise go through zarr
+    from zarr.codecs import BytesCodec, GzipCodec
+
+    from storage.arrays import _ChunkCodec
+
+    other = zarr.open_group(tmp_path / "other.zarr", mode="w")
+    gz = other.create_array("gz", shape=(2, 3), chunks=(1, 3), dtype="int32", compressors=GzipCodec())
+    big = other.create_array(
+        "be", shape=(2, 3), chunks=(1, 3), dtype="int32", serializer=BytesCodec(endian="big")
+    )
+    two = other.create_array("two", shape=(2, 4), chunks=(1, 2), dtype="int32")
+    assert not any(_ChunkCodec.supports(a) for a in (gz, big, two))
+
+    # a chunk of another item's size decodes but is refused
+    small = store.create_arrays("01", VOLUME, 1, 2, omit=("labels", "probs"))
+    small.write_item(0, {k: v[:2] for k, v in vals.items() if k != "probs"}, 2)
+    other = tmp_path / "sequences/01/align/arrays.zarr/source_frame/c/0/0"
+    (base / "source_frame/c/0/0").write_bytes(other.read_bytes())
+    with pytest.raises(
+        DamagedStoreError, match=r"source_frame/c/0/0: chunk of item 0 cannot be decoded .*8 bytes, not"
+    ):
+        store.arrays("00", VOLUME).read_item(0)
+
+
+def test_shuffled_lz4_arrays_are_zarrs_both_ways_and_smaller(tmp_path):
+    """An array declared ``codec="shuffle-lz4"`` is stored with zarr's blosc codec: the direct item
+    path and zarr read each other's chunks; a point index takes almost no bytes (zstd: 64 %)."""
+    import zarr
+
+    shuffled = StageContract(
+        "align",
+        item="volume",
+        arrays=(
+            ArraySpec("points", "float32", trailing=(4,), codec="shuffle-lz4"),
+            ArraySpec("source_index", "int32", codec="shuffle-lz4"),
+        ),
+    )
+    with pytest.raises(ValueError, match="codec 'gzip' is not one of"):
+        ArraySpec("x", "float32", codec="gzip")
+    store = RunStore(tmp_path)
+    n = 5000
+    arrays = store.create_arrays("00", shuffled, 2, n)
+    assert {"points", "source_index"} <= set(arrays._direct)
+    rng = np.random.default_rng(0)
+    pts = (rng.normal(size=(n, 4)) * 20).astype(np.float32)
+    record = arrays.write_item(0, {"points": pts, "source_index": np.arange(n)}, n)
+    chunks = record["chunks"]
+    assert chunks["source_index"]["size"] < 0.05 * 4 * n  # an arange shuffles to almost nothing
+    group = zarr.open_group(tmp_path / "sequences/00/align/arrays.zarr", mode="r+")
+    assert group["points"].metadata.codecs[1].to_dict()["name"] == "blosc"
+    assert np.array_equal(group["points"][0], pts) and np.array_equal(group["source_index"][0], np.arange(n))
+    group["points"][1] = pts[::-1]
+    assert np.array_equal(store.arrays("00", shuffled)._get("points", 1), pts[::-1])
+
+
 def test_named_trailing_sizes_come_from_the_plan(tmp_path):
     store = RunStore(tmp_path)
     with pytest.raises(ContractError, match="needs the size 'classes'"):

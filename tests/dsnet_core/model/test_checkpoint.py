@@ -19,6 +19,7 @@ from dsnet_core.model.cylinder import CylinderGrid
 from dsnet_core.model.inference import Predictor
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import ModelConfig
+from dsnet_core.model.tta import TTAConfig
 
 GRID = CylinderGrid(size=(24, 20, 8), min_bound=(0.0, -math.pi, -2.0), max_bound=(12.0, math.pi, 1.0))
 CFG = ModelConfig(width=2, point_mlp=(8, 8), compress=4, ins_dim=6, grid=GRID)
@@ -119,6 +120,29 @@ def test_predictor_outputs(ckpt):
     np.testing.assert_array_equal(res.probs, torch.softmax(logits, 1).to(torch.float16).numpy())
     np.testing.assert_array_equal(res.sem, (logits[:, 1:].argmax(1) + 1).numpy())
     assert np.unique(ref.point_to_voxel.numpy()).size < 300  # some voxels hold several points
+
+
+@pytest.mark.parametrize("tta", [None, TTAConfig(rotations=2)])
+def test_stored_predictions_are_the_quantised_and_masked_predictions(ckpt, tta):
+    """predict_stored quantises once per voxel (or per point under TTA) and converts only the kept
+    points: bit for bit what quantising and masking predict_batch's results gives."""
+    from tasks.infer import quantise_probs, thing_only
+
+    path, _ = ckpt
+    pred = Predictor.from_checkpoint(path, tta=tta)
+    clouds = [cloud(300, 0), np.zeros((0, 4), np.float32), cloud(120, 1)]
+    keep = np.zeros(20, bool)
+    keep[1:9] = True
+    full = pred.predict_batch(clouds)
+    stored = pred.predict_stored(clouds, keep)
+    assert list(pred.predict_stored_iter(clouds, keep, batch_size=2))[2].probs.shape == (120, 20)
+    for f, s in zip(full, stored, strict=True):
+        kept = keep[f.sem]
+        assert np.array_equal(s.kept, kept) and np.array_equal(s.sem, f.sem)
+        assert s.probs.dtype == np.uint8 and np.array_equal(s.probs, quantise_probs(f.probs))
+        for got, want, dtype in ((s.offsets, f.offsets, "float32"), (s.features, f.features, "float16")):
+            assert got.dtype == np.dtype(dtype) and np.array_equal(got, thing_only(want, kept, dtype))
+    assert 0 < stored[0].kept.sum() < 300  # some points kept, some not
 
 
 def test_predictor_rejects_bad_points(ckpt):

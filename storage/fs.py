@@ -148,13 +148,7 @@ class RootFS:
             base = self.path(rel)
             if os.path.isfile(self.root):
                 raise self._not_a_folder(self.root)
-            for folder, _, files in os.walk(base):
-                for name in files:
-                    path = os.path.join(folder, name)
-                    try:
-                        out[os.path.relpath(path, base).replace(os.sep, "/")] = os.stat(path).st_size
-                    except FileNotFoundError:
-                        pass
+            _scan_sizes(base, "", out)
             return out
         base = self.path(rel).rstrip("/")
         try:
@@ -309,3 +303,21 @@ def _is_precondition_failed(exc: BaseException) -> bool:
         return True
     text = f"{exc} {getattr(exc, '__cause__', '')}"
     return "PreconditionFailed" in text or "412" in text
+
+
+def _scan_sizes(folder: str, prefix: str, out: dict[str, int]) -> None:
+    """Every file under ``folder`` into ``out`` as ``{prefix + relative path: size}`` (scandir:
+    one stat a file, no path arithmetic; a file or folder removed meanwhile is left out)."""
+    try:
+        entries = os.scandir(folder)
+    except (FileNotFoundError, NotADirectoryError):
+        return
+    with entries:
+        for entry in entries:
+            try:
+                if entry.is_dir(follow_symlinks=False):
+                    _scan_sizes(entry.path, f"{prefix}{entry.name}/", out)
+                else:
+                    out[prefix + entry.name] = entry.stat().st_size
+            except FileNotFoundError:
+                pass

@@ -58,6 +58,9 @@ STORE_FORMAT = 1
 in another format is refused with one line that says to relabel: the product carries no readers
 of formats from before its release."""
 BLOCK_RECORD = ".b2"
+ROWS_SUFFIX = ".rows"
+"""A block fragment's table rows beside it: ``blocks/NNNNN.rows`` (not a ``.json``, so not taken
+for a fragment)."""
 CHANGED = "file does not match the checksum recorded when it was written"
 
 
@@ -164,27 +167,54 @@ class RunStore:
         return posixpath.join(self.stage_rel(sequence, stage), "blocks", f"{block:05d}.json")
 
     def write_fragment(self, sequence: str, stage: str, fragment: BlockFragment) -> None:
+        """The block's rows file (when it has rows), then its fragment: the fragment commits both."""
         rel = self.fragment_rel(sequence, stage, fragment.block)
+        if fragment.rows:
+            rows = fragment.model_dump_json(include={"rows"}).encode()
+            self.root.write_bytes(rel[: -len(".json")] + ROWS_SUFFIX, rows)
+            fragment = fragment.model_copy(update={"rows": {}, "rows_bytes": len(rows)})
         self.root.write_bytes(rel, fragment.model_dump_json().encode())
 
     def remove_fragment(self, sequence: str, stage: str, block: int) -> None:
         """Forget a finished block (a resume reruns it)."""
         self.root.remove(self.fragment_rel(sequence, stage, block))
 
-    def fragments(self, sequence: str, stage: str, fingerprint: str) -> dict[int, BlockFragment]:
-        """Finished blocks of the stage with this fingerprint."""
+    def fragments(
+        self, sequence: str, stage: str, fingerprint: str, rows: bool = False
+    ) -> dict[int, BlockFragment]:
+        """Finished blocks of the stage with this fingerprint; ``rows``: with their table rows.
+
+        A fragment whose rows file is missing or has another size than recorded is not finished
+        (its block runs again; :meth:`check_stage` names the file)."""
+        return self._fragments(sequence, stage, fingerprint, rows)[0]
+
+    def _fragments(
+        self, sequence: str, stage: str, fingerprint: str, rows: bool
+    ) -> tuple[dict[int, BlockFragment], list[Damage]]:
         base = posixpath.join(self.stage_rel(sequence, stage), "blocks")
-        out = {}
-        for name in self.root.listdir(base):
-            if not name.endswith(".json") or name.startswith("."):
+        sizes = self.root.sizes(base)
+        out, bad = {}, []
+        for name in sorted(sizes):
+            if not name.endswith(".json") or name.startswith(".") or "/" in name:
                 continue
             data = self.root.read_json(posixpath.join(base, name))
             if data is None:
                 continue
             frag = BlockFragment.model_validate(data)
-            if frag.fingerprint == fingerprint:
-                out[frag.block] = frag
-        return out
+            if frag.fingerprint != fingerprint:
+                continue
+            if frag.rows_bytes:
+                rows_rel = posixpath.join(base, name[: -len(".json")] + ROWS_SUFFIX)
+                found = sizes.get(rows_rel[len(base) + 1 :])
+                if found != frag.rows_bytes:
+                    now = "is missing" if found is None else f"has {found} bytes"
+                    problem = f"block rows file {now}, {frag.rows_bytes} when written"
+                    bad.append(Damage(self.root.url(rows_rel), problem, block=frag.block))
+                    continue
+                if rows:
+                    frag.rows = (self.root.read_json(rows_rel) or {}).get("rows", {})
+            out[frag.block] = frag
+        return out, bad
 
     def completed_blocks(self, sequence: str, stage: str, fingerprint: str) -> set[int]:
         return set(self.fragments(sequence, stage, fingerprint))
@@ -309,10 +339,9 @@ class RunStore:
         compares digests, and hashes every table partition. Items of fragments written before
         records existed are checked in ``full`` mode only, for decode errors.
         """
-        out: list[Damage] = []
-        frags = self.fragments(sequence, contract.stage, manifest.fingerprint)
+        frags, out = self._fragments(sequence, contract.stage, manifest.fingerprint, rows=False)
         for b in range(len(manifest.blocks)):
-            if b not in frags:
+            if b not in frags and not any(d.block == b for d in out):
                 where = self.root.url(self.fragment_rel(sequence, contract.stage, b))
                 out.append(Damage(where, "block fragment is missing", block=b))
         out += self._check_block_bytes(sequence, contract.stage)

@@ -308,7 +308,7 @@ def finalize_stage(store: RunStore, pipeline: Pipeline, sequence: str, stage: st
     manifest = store.read_manifest(sequence, stage)
     if manifest is None or manifest.fingerprint != fp:
         raise StoreError(store.where(sequence, stage), "manifest changed before finalise")
-    frags = store.fragments(sequence, stage, fp)
+    frags = store.fragments(sequence, stage, fp, rows=True)
     missing = sorted(set(range(len(manifest.blocks))) - set(frags))
     if missing:
         raise StoreError(store.where(sequence, stage), f"blocks {missing} are not done")

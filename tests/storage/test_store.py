@@ -493,3 +493,26 @@ def test_a_store_of_another_format_is_refused_in_one_line_that_says_to_relabel(t
         StoreFormatError, match="run store of format before 1, this dsnet reads format 1: relabel"
     ):
         store.read_run_config()
+
+
+def test_a_fragments_rows_live_beside_it_and_a_missing_rows_file_unfinishes_its_block(tmp_path):
+    store = RunStore(tmp_path)
+    contract, m = _finished_stage(store)
+    rows = {"frames": [{"index": i, "frame_id": f"{i:06d}", "n_points": 6} for i in range(4)]}
+    (frag,) = store.fragments("00", "align", "f").values()
+    store.write_fragment("00", "align", frag.model_copy(update={"rows": rows}))
+    blocks = tmp_path / "sequences/00/align/blocks"
+    head = json.loads((blocks / "00000.json").read_text())
+    assert head["rows"] == {} and head["rows_bytes"] == (blocks / "00000.rows").stat().st_size
+    assert store.fragments("00", "align", "f")[0].rows == {}  # status and resume: no rows parsed
+    assert store.fragments("00", "align", "f", rows=True)[0].rows == rows  # gathering the tables
+    assert store.check_stage("00", contract, m) == []
+
+    (blocks / "00000.rows").write_bytes(b'{"rows": {}}')  # another size: not what the block wrote
+    assert store.fragments("00", "align", "f", rows=True) == {}  # the block runs again
+    (damage,) = store.check_stage("00", contract, m)
+    assert damage.block == 0 and damage.where.endswith("blocks/00000.rows")
+    assert damage.problem.startswith("block rows file has 12 bytes, ")
+    (blocks / "00000.rows").unlink()
+    (damage,) = store.check_stage("00", contract, m)
+    assert damage.problem.startswith("block rows file is missing, ")

@@ -44,7 +44,27 @@ def pending_sequences(request: LabelRequest, sequences: list[str] | None = None)
         return list(sequences)
     store = RunStore(request.root, request.storage_options)
     run = request_run(request, reader.format)
+    if not _report_intact(store):  # the run writes its config and report again: every sequence
+        return list(sequences)
     return [seq for seq in sequences if not _finished(store, pipeline, request.order(pipeline), seq, run)]
+
+
+def _report_intact(store: RunStore) -> bool:
+    """Whether what a run writes besides its stages is there and undamaged: the run config
+    (``run.json``), every report table the store has (its digest against its record: they are
+    small, one row per frame at most) and the dashboard. A run answered "nothing to do" rewrites
+    none of them."""
+    from flows.report.tables import REPORT_TABLES
+    from storage.run import DASHBOARD
+
+    try:
+        store.read_run_config()
+        damaged = any(
+            store.check_run_table(s, full=True) for s in REPORT_TABLES.values() if store.has_table(s)
+        )
+    except (StoreError, ValueError):
+        return False
+    return not damaged and store.root.size(DASHBOARD) is not None
 
 
 def _finished(store: RunStore, pipeline, order: list[str], sequence: str, run: RunConfig) -> bool:
@@ -58,7 +78,7 @@ def _finished(store: RunStore, pipeline, order: list[str], sequence: str, run: R
                 return False
             if stage_fingerprint(store, pipeline, sequence, stage, run) != m.fingerprint:
                 return False
-            if store.check_stage(sequence, pipeline[stage].contract, m):
+            if store.check_stage(sequence, pipeline[stage].contract, m, flags=True):
                 return False
     except StoreError:  # e.g. an upstream stage cleared by a concurrent run between two reads
         return False

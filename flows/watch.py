@@ -183,7 +183,22 @@ def serve(
         watch.stop()
 
 
+class _ShutdownNoise:
+    """Drops asyncio's report of a task cancelled while Prefect's runner stops on SIGTERM (its
+    control channel's reader, a traceback ending in ``CancelledError`` on every ``systemctl stop``);
+    every other asyncio error is still logged."""
+
+    def filter(self, record) -> bool:
+        import asyncio
+
+        exc = record.exc_info[1] if record.exc_info else None
+        return not isinstance(exc, asyncio.CancelledError)
+
+
 def _serve(request: LabelRequest, cron: str, dataset: str, deployment: str) -> None:
+    import logging
+
+    logging.getLogger("asyncio").addFilter(_ShutdownNoise())
     auto_label.serve(
         name=deployment,
         cron=cron,

@@ -337,6 +337,16 @@ class StageArrays:
                 DamagedStoreError.RERUN if recorded else self._legacy_fix(),
             ) from exc
 
+    def check_done_flag(self, index: int) -> str | None:
+        """What is wrong with an item's ``done`` flag (None: it decodes to 1). The cheap check sees
+        only sizes; a flipped bit in this 1-byte chunk keeps its size, and every reader of the item
+        then refuses it."""
+        try:
+            flag = self._get("done", index)
+        except DamagedStoreError as exc:
+            return exc.problem
+        return None if int(flag) == 1 else f"done flag of item {index} reads {int(flag)}, not 1"
+
     def _legacy_fix(self) -> str:
         return (
             f"it was written without a checksum record, so rerun `dsnet label --from-stage "

@@ -328,7 +328,12 @@ class RunStore:
 
     # -- integrity -------------------------------------------------------------------------------
     def check_stage(
-        self, sequence: str, contract: StageContract, manifest: Manifest, full: bool = False
+        self,
+        sequence: str,
+        contract: StageContract,
+        manifest: Manifest,
+        full: bool = False,
+        flags: bool = False,
     ) -> list[Damage]:
         """What is damaged in a finished stage's files (empty: nothing found).
 
@@ -337,7 +342,9 @@ class RunStore:
         ``n_points`` chunks exist; every table partition has its recorded size (a manifest from
         before records: its footer parses). ``full`` also decodes every recorded item and
         compares digests, and hashes every table partition. Items of fragments written before
-        records existed are checked in ``full`` mode only, for decode errors.
+        records existed are checked in ``full`` mode only, for decode errors. ``flags`` (what a
+        run checks before it skips a stage) also decodes every item's 1-byte ``done`` chunk: a
+        flipped bit keeps its size.
         """
         frags, out = self._fragments(sequence, contract.stage, manifest.fingerprint, rows=False)
         for b in range(len(manifest.blocks)):
@@ -346,7 +353,7 @@ class RunStore:
                 out.append(Damage(where, "block fragment is missing", block=b))
         out += self._check_block_bytes(sequence, contract.stage)
         if contract.arrays and manifest.n_items:
-            out += self._check_arrays(sequence, contract, frags, full)
+            out += self._check_arrays(sequence, contract, frags, full, flags)
         for spec in contract.tables:
             out += self._check_table(sequence, spec, manifest.tables.get(spec.name), full)
         return out
@@ -369,7 +376,12 @@ class RunStore:
         return out
 
     def _check_arrays(
-        self, sequence: str, contract: StageContract, frags: dict[int, BlockFragment], full: bool
+        self,
+        sequence: str,
+        contract: StageContract,
+        frags: dict[int, BlockFragment],
+        full: bool,
+        flags: bool = False,
     ) -> list[Damage]:
         rel = posixpath.join(self.stage_rel(sequence, contract.stage), "arrays.zarr")
         try:
@@ -406,6 +418,8 @@ class RunStore:
                         arrays.read_item(item)
                     except StoreError as exc:  # damaged, or "not done": its done flag was overwritten
                         bad = Damage(exc.where, exc.problem, item)
+                elif bad is None and flags and (problem := arrays.check_done_flag(item)) is not None:
+                    bad = Damage(arrays.chunk_url("done", item), problem, item)
                 if bad is not None:
                     out.append(bad)
         return out

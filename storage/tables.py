@@ -107,10 +107,20 @@ def read_table(root: RootFS, spec: TableSpec) -> pa.Table:
         default_fragment_scan_options=ds.ParquetFragmentScanOptions(page_checksum_verification=True)
     )
     try:
-        return ds.dataset(root.path(base), format=fmt, partitioning=part, filesystem=fs).to_table()
+        dataset = ds.dataset(root.path(base), format=fmt, partitioning=part, filesystem=fs)
+        if not dataset.files:  # every partition removed (a run whose sequences all failed)
+            return _empty(spec)
+        return dataset.to_table()
     except (pa.ArrowException, OSError) as exc:
         problem = f"a parquet file of table {spec.name!r} cannot be read ({exc})"
         raise DamagedStoreError(root.url(base), problem) from exc
+
+
+def _empty(spec: TableSpec) -> pa.Table:
+    """No rows, with the contract's columns and the partition columns (strings), as a read of a
+    table with rows has them."""
+    fields = [*spec.schema, *(f for f in spec.partition_schema if f.name not in spec.schema.names)]
+    return pa.schema(fields).empty_table()
 
 
 def remove_partition(root: RootFS, spec: TableSpec, partition: dict[str, str]) -> None:

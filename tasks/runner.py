@@ -144,7 +144,7 @@ def prepare_stage(
     old = store.read_manifest(sequence, stage)
     action = "resume"
     if old is not None and old.fingerprint == fp and not force and old.status == "done":
-        damage = store.check_stage(sequence, spec.contract, old)
+        damage = store.check_stage(sequence, spec.contract, old, flags=True)
         if not damage:
             return Decision("skip", fp, old)
         action = "repair"
@@ -251,12 +251,13 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
 
     todo = list(job.items)
     if arrays is not None:  # items of an interrupted block whose done flag is set are not recomputed
-        kept = []
-        for item, done in zip(job.items, arrays.done_items(job.items), strict=True):
-            record = store.read_item_record(job.sequence, job.stage, item) if done else None
+        kept = []  # a repair forgot its damaged items' records: a damaged done flag is not read
+        for item in job.items:
+            record = store.read_item_record(job.sequence, job.stage, item)
             if (
                 record is not None
                 and record.get("fingerprint") == job.fingerprint
+                and arrays.check_done_flag(item) is None
                 and arrays.files_intact(item, record)
             ):
                 add(record["rows"], record["counts"])

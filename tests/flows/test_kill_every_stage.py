@@ -38,11 +38,12 @@ MODES = ("start", "first-block", "window")
 
 # Columns that differ between two correct runs of the same log and so are left out of the table
 # comparison: wall-clock timings (stage_timings: wall_s, block_s and the rates derived from them),
-# the run's identity (score_run: run_id, created — a time stamp — and root, the run folder, which is
-# another folder for every run here).
+# the run's identity (score_run and label_run: run_id, created — a time stamp — and root, the run
+# folder, which is another folder for every run here).
 IGNORED = {
     "stage_timings": {"wall_s", "block_s", "items_per_s", "points_per_s"},
     "score_run": {"run_id", "created", "root"},
+    "label_run": {"run_id", "created", "root"},
 }
 
 

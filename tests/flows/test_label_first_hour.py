@@ -78,6 +78,26 @@ def test_a_rerun_with_nothing_to_do_needs_no_server_and_both_end_with_a_summary(
     moved = _run(*[{run: "r1", synth_log: relative}.get(a, a) for a in args], cwd=run.parent)
     assert moved.returncode == 0 and moved.stdout.startswith("nothing to do"), moved.stderr[-2000:]
 
+    # "nothing to do" only where the report, the run config and every done flag are intact too:
+    # a run that answers it rewrites none of them (found by tests/flows/test_fuzz.py)
+    table = run / "tables" / "label_frames" / "part-0.parquet"
+    data = bytearray(table.read_bytes())
+    data[len(data) // 2] ^= 16  # same size: only its digest tells
+    table.write_bytes(bytes(data))
+    (run / "run.json").unlink()
+    done = next((run / "sequences" / "00" / "refine" / "arrays.zarr" / "done" / "c").iterdir())
+    flag = bytearray(done.read_bytes())
+    flag[3] ^= 4
+    done.write_bytes(bytes(flag))
+    repaired = _run(*args, PREFECT_API_URL=prefect_api_url)
+    assert repaired.returncode == 0 and not repaired.stdout.startswith("nothing to do"), repaired.stderr[
+        -2000:
+    ]
+    assert "refine " in repaired.stdout.splitlines()[-4]  # the damaged item's stage ran again
+    assert (run / "run.json").exists()
+    verified = _run("status", run, "--verify")
+    assert verified.returncode == 0 and "damaged" not in verified.stdout, verified.stdout
+
 
 def test_progress_counts_items_as_blocks_run(synth_log, tmp_path):
     """Each item a block computes in this process is reported (the CLI's bars count frames)."""

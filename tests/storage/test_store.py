@@ -516,3 +516,25 @@ def test_a_fragments_rows_live_beside_it_and_a_missing_rows_file_unfinishes_its_
     (blocks / "00000.rows").unlink()
     (damage,) = store.check_stage("00", contract, m)
     assert damage.problem.startswith("block rows file is missing, ")
+
+
+def test_a_flipped_bit_in_a_done_flag_is_damage_a_run_sees_before_it_skips(tmp_path):
+    store = RunStore(tmp_path)
+    contract, m = _finished_stage(store)
+    chunk = tmp_path / "sequences/00/align/arrays.zarr/done/c/2"
+    data = bytearray(chunk.read_bytes())
+    data[3] ^= 4  # the size stays: the cheap check (dsnet status) cannot see it
+    chunk.write_bytes(bytes(data))
+    assert store.check_stage("00", contract, m) == []
+    (damage,) = store.check_stage("00", contract, m, flags=True)
+    assert damage.item == 2 and damage.where.endswith("align/arrays.zarr/done/c/2")
+    assert damage.problem.startswith("chunk of item 2 cannot be decoded")
+
+
+def test_a_partitioned_table_without_partitions_reads_empty_with_its_columns(tmp_path):
+    root = RootFS(str(tmp_path))
+    write_partition(root, FRAMES, {"sequence": "00"}, to_table(FRAMES, [{"index": 0}]))
+    (tmp_path / "tables" / FRAMES.name / "sequence=00" / "part-0.parquet").unlink()
+    table = read_table(root, FRAMES)  # every sequence of the run failed: no partition left
+    assert table.num_rows == 0
+    assert table.column_names == [*FRAMES.schema.names, "sequence"]

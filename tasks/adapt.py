@@ -59,6 +59,7 @@ class AdaptOptions(BaseModel):
     source_sensors: str | None = Field(None, description="Stream sensors (default: the parent's).")
     stream_workers: int = Field(1, ge=0, description="Background render processes of the stream.")
     clusterer: str | None = Field(None, description="The teacher's clusterer (see dsnet label).")
+    estimate_poses: bool = Field(False, description="Logs without poses: the teacher estimates them.")
     device: str = Field("cpu", description="cpu, cuda or cuda:N.")
     seed: int = Field(0, ge=0, description="Seed of order, augmentation, mixing and source samples.")
     threads: int = Field(1, ge=1, description="Torch CPU threads.")
@@ -138,7 +139,12 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     )
     train, heldout, exclude = corrected_frames(options, logs, cfg)
     source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
-    settings = LabelSettings(scans=options.scans, device=options.device, clusterer=options.clusterer)
+    settings = LabelSettings(
+        scans=options.scans,
+        device=options.device,
+        clusterer=options.clusterer,
+        estimate_poses=options.estimate_poses,
+    )
     labeller = TeacherLabeller(options.out, logs, method, settings, params, label_map, exclude, on_label)
     record = {
         "method": method.name,

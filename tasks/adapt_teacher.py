@@ -199,18 +199,17 @@ class TeacherLabeller:
                 votes, tracks = consistency[i, seq]
                 for f in self._frames(store, pipeline, run, seq):
                     done += 1
-                    if (seq, f.frame_id) in self.exclude:
+                    if self.progress is not None:
+                        self.progress(r, "select pseudo-labels", done, frames)
+                    if (seq, f.frame_id) in self.exclude:  # corrected: true labels instead
                         continue
                     ok = frame_consistency(f.sem, f.inst, f.world, votes, tracks, self.params)
                     sem, inst = select_frame(f.sem, f.inst, f.conf, ok, thresholds, self.params)
                     prev = self._previous(r, i, seq, f.frame_id, f.sem.size)
                     stats.add(f.sem, f.inst, f.conf, ok, sem, inst, f.gt, prev)
-                    if not (sem > 0).any():  # nothing to learn from: not a training frame
-                        continue
-                    path = label_file(tmp / str(i), seq, f.frame_id)
-                    write_labels(path, encode_labels(sem, inst, self.label_map))
-                    if self.progress is not None:
-                        self.progress(r, "select pseudo-labels", done, frames)
+                    if (sem > 0).any():  # else nothing to learn from: not a training frame
+                        path = label_file(tmp / str(i), seq, f.frame_id)
+                        write_labels(path, encode_labels(sem, inst, self.label_map))
         shutil.rmtree(folder / "pseudo", ignore_errors=True)
         tmp.mkdir(parents=True, exist_ok=True)
         os.replace(tmp, folder / "pseudo")

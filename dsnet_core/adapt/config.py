@@ -82,8 +82,9 @@ class AdaptConfig:
         return floor + 0.5 * (self.lr - floor) * (1.0 + math.cos(math.pi * epoch / (self.epochs - 1)))
 
     def changed(self, recorded: dict) -> list[str]:
-        """The settings that differ from a card's record (``rounds`` may grow on a resume)."""
-        now = {k: v for k, v in asdict(self).items() if k != "rounds"}
+        """The settings that differ from a card's record (``rounds`` may grow on a resume, and the
+        device may change)."""
+        now = {k: v for k, v in asdict(self).items() if k not in ("rounds", "device")}
         return [f"{k}: {recorded.get(k)!r} → {v!r}" for k, v in now.items() if recorded.get(k) != v]
 
 

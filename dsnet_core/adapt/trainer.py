@@ -266,6 +266,15 @@ class AdaptTrainer(TrainerSkeleton):
                 losses.append(float(loss.detach()))
                 if on_step is not None:
                     on_step(stage, epoch + 1, len(losses), n, losses[-1])
+                if len(losses) % 25 == 0:
+                    log.info(
+                        "%s epoch %d step %d/%d: mean loss %.4f",
+                        stage,
+                        epoch + 1,
+                        len(losses),
+                        n,
+                        np.mean(losses[-25:]),
+                    )
         self.teacher.eval()
         return float(np.mean(losses))
 

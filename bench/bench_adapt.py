@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -142,15 +143,24 @@ def score(ckpt: Path, data: Path, store: Path, cache: Path) -> dict:
     return out
 
 
-def run_cmd(cmd: list[str], log: Path) -> float:
-    """Run a ``dsnet`` command (output to ``log``); its wall seconds."""
+def run_cmd(cmd: list[str], log: Path) -> tuple[float, float, float]:
+    """Run a ``dsnet`` command (output to ``log``); its wall seconds, its CPU seconds (user + system,
+    the process and its children) and the machine's mean 1-minute load average while it ran (the
+    machine is shared: CPU seconds are what it would take alone on one core)."""
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
+    loads: list[float] = []
     with open(log, "w") as f:
-        res = subprocess.run(cmd, cwd=REPO, env=env, stdout=f, stderr=subprocess.STDOUT)
-    if res.returncode != 0:
+        proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=f, stderr=subprocess.STDOUT)
+        while proc.poll() is None:
+            loads.append(os.getloadavg()[0])
+            time.sleep(5)
+    if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed (see {log})")
-    return time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return time.perf_counter() - t0, cpu, sum(loads) / max(len(loads), 1)
 
 
 def adapt(data: Path, out: Path, args) -> dict:
@@ -176,11 +186,13 @@ def adapt(data: Path, out: Path, args) -> dict:
         return json.loads(stamp.read_text())
     if out.exists():
         cmd.append("--resume")
-    seconds = run_cmd(cmd, out.parent / "adapt.log")
+    seconds, cpu, load = run_cmd(cmd, out.parent / "adapt.log")
     card = json.loads((out / "card.json").read_text())
     rec = {
         "command": cmd[2:] if cmd[-1] != "--resume" else cmd[2:-1],
         "seconds": round(seconds, 1),
+        "cpu_seconds": round(cpu, 1),
+        "load": round(load, 1),
         "rounds": card["training_data"]["adapt"]["rounds"],
         "metrics": card["metrics"],
     }
@@ -210,7 +222,7 @@ def reference(data: Path, out: Path, parent: Path, args) -> float:
         "--schedule",
         "constant",
     ]
-    return run_cmd(cmd, out.parent / "reference.log")
+    return run_cmd(cmd, out.parent / "reference.log")[0]
 
 
 def main() -> None:
@@ -281,21 +293,17 @@ def markdown(results: dict) -> str:
     head = [
         "target",
         "set",
-        "PQ before",
-        "PQ after",
+        "PQ before → after",
         "ΔPQ",
-        "mIoU before",
-        "mIoU after",
+        "mIoU before → after",
         "ΔmIoU",
-        "gap PQ",
-        "gap mIoU",
+        "reference PQ / mIoU",
+        "gap closed PQ / mIoU",
         "coverage",
         "precision",
-        "adapt s",
+        "adapt wall s (CPU s, load)",
     ]
     lines = [
-        "# dsnet adapt: zero labels",
-        "",
         f"source {results['parent']}, {results['rounds']} round(s) × {results['steps']} steps",
         "",
         "| " + " | ".join(head) + " |",
@@ -303,53 +311,62 @@ def markdown(results: dict) -> str:
     ]
     src = results["source_parent"]
     for name, row in results["targets"].items():
-        rounds = row["adapt"]["rounds"]
-        cov = rounds[-1].get("coverage", float("nan")) if rounds else float("nan")
-        prec = rounds[-1].get("precision", float("nan")) if rounds else float("nan")
+        last = row["adapt"]["rounds"][-1] if row["adapt"]["rounds"] else {}
+        ad = row["adapt"]
+        timing = f"{ad['seconds']:.0f}" + (
+            f" ({ad['cpu_seconds']:.0f}, {ad['load']:.1f})" if "load" in ad else ""
+        )
         for k in ("A", "D"):
             b, a, r = row["before"][k], row["after"][k], row["reference"].get(k)
-            gaps = ["–", "–"]
+            ref = gap = "–"
             if r:
-                gaps = [
-                    f"{(a[m] - b[m]) / (r[m] - b[m]):.2f}" if abs(r[m] - b[m]) > 1e-9 else "–"
-                    for m in ("pq", "miou")
-                ]
-            lines.append(
-                "| "
-                + " | ".join(
-                    [
-                        name,
-                        k,
-                        f"{b['pq']:.3f}",
-                        f"{a['pq']:.3f}",
-                        f"{a['pq'] - b['pq']:+.3f}",
-                        f"{b['miou']:.3f}",
-                        f"{a['miou']:.3f}",
-                        f"{a['miou'] - b['miou']:+.3f}",
-                        *gaps,
-                        f"{cov:.3f}",
-                        f"{prec:.3f}",
-                        f"{row['adapt']['seconds']:.0f}",
-                    ]
-                )
-                + " |"
-            )
+                ref = f"{r['pq']:.3f} / {r['miou']:.3f}"
+                gap = " / ".join(_gap(b[m], a[m], r[m]) for m in ("pq", "miou"))
+            cells = [
+                name,
+                k,
+                f"{b['pq']:.3f} → {a['pq']:.3f}",
+                f"{a['pq'] - b['pq']:+.3f}",
+                f"{b['miou']:.3f} → {a['miou']:.3f}",
+                f"{a['miou'] - b['miou']:+.3f}",
+                ref,
+                gap,
+                f"{last.get('coverage', float('nan')):.3f}",
+                f"{last.get('precision', float('nan')):.3f}",
+                timing,
+            ]
+            lines.append("| " + " | ".join(cells) + " |")
         s = row["source_after"]
-        lines.append(
-            f"| {name} | source | {src['pq']:.3f} | {s['pq']:.3f} | {s['pq'] - src['pq']:+.3f} | "
-            f"{src['miou']:.3f} | {s['miou']:.3f} | {s['miou'] - src['miou']:+.3f} | | | | | |"
-        )
+        cells = [
+            name,
+            "source",
+            f"{src['pq']:.3f} → {s['pq']:.3f}",
+            f"{s['pq'] - src['pq']:+.3f}",
+            f"{src['miou']:.3f} → {s['miou']:.3f}",
+            f"{s['miou'] - src['miou']:+.3f}",
+            "",
+            "",
+            "",
+            "",
+            "",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
     lines += [
         "",
-        "Official mode, k = 1 + track, refine off. A: the sequences adapted on (unlabelled to adapt); "
-        "D: disjoint sequences of the same target; source: a held-out seed of the training styles and "
-        "sensors, labelled by the model adapted to the row's target. gap: share of the gap to the "
-        "reference (the source fine-tuned on A's ground truth with the same steps) closed. coverage and "
-        "precision: the last round's pseudo-labels (precision scored against the ground truth the log "
-        "carries; never used for training). adapt s: wall seconds of the whole `dsnet adapt` command "
-        "(labelling, selection, training) on this shared 2-core machine.",
+        "Official mode, k = 1 + track, refine off for every model. A: the sequences adapted on "
+        "(unlabelled to adapt); D: disjoint sequences of the same target; source: a held-out seed of the "
+        "training styles and sensors, labelled by the model adapted to the row's target. reference: the "
+        "source fine-tuned on A's ground truth with the same steps and learning rate; gap closed = "
+        "(after − before) / (reference − before). coverage, precision: the last round's pseudo-labels "
+        "(precision against the ground truth the log carries, never used for training). adapt: the whole "
+        "`dsnet adapt` command (labelling, selection, training); CPU s: user + system seconds of it and "
+        "its render workers; load: the shared 2-core machine's mean 1-minute load average meanwhile.",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _gap(before: float, after: float, reference: float) -> str:
+    return f"{(after - before) / (reference - before):.2f}" if abs(reference - before) > 1e-9 else "–"
 
 
 if __name__ == "__main__":

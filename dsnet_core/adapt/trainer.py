@@ -201,8 +201,8 @@ class AdaptTrainer(TrainerSkeleton):
         return torch.optim.Adam(self.model.parameters(), lr=self.cfg.lr)
 
     def before_stage(self, stage: str, done: int) -> None:
-        """The round's pseudo-labels (labelled by the round's teacher), and the parent's held-out
-        score before the very first epoch."""
+        """The round's pseudo-labels (labelled by the round's teacher), and the parent's source probe
+        and held-out scores before the very first epoch."""
         r = round_of(stage)
         data = self.labeller(r, self.teacher_checkpoint(r))
         if not data.items and not self.corrected:
@@ -214,8 +214,10 @@ class AdaptTrainer(TrainerSkeleton):
         rounds = self.card.training_data["adapt"]["rounds"]
         del rounds[r - 1 :]
         rounds.append({"round": r, **data.record})
-        if self._early_stopping() and not self.card.metrics and done == 0:
-            stopping.start(self)
+        if not self.card.metrics and done == 0:  # the parent's scores: epoch 0
+            self.card.training_data["adapt"]["source_start"] = self._miou(self.source_val)
+            if self._early_stopping():
+                stopping.start(self)
 
     def after_epoch(self, stage: str, epoch: int, total: int) -> bool:
         if not self._early_stopping():

@@ -99,6 +99,7 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_weights(world, tmp_path
     adapt = resumed.training_data["adapt"]
     assert [r["round"] for r in adapt["rounds"]] == [1, 2] and adapt["parent"]["path"].endswith("parent")
     assert "fixed budget" in adapt["stopping"] and len(resumed.metrics) == 4
+    assert 0 <= adapt["source_start"] <= 1  # the parent's source probe, epoch 0
     # the teacher is an EMA of the student, not the student
     teacher, _ = load_checkpoint(tmp_path / "killed")
     student = load_file(str(tmp_path / "killed" / STUDENT))

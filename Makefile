@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 CONSTRAINTS := constraints/lock.txt
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml Makefile $(CONSTRAINTS) | cksum | cut -d' ' -f1)
 
-.PHONY: demo test test-slow test-gpu bench lint format clean chromium
+.PHONY: demo test test-slow test-gpu bench lint format clean chromium postgresql gpu-wheels gpu-check gpu-train
 
 $(STAMP): pyproject.toml Makefile $(CONSTRAINTS)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -33,12 +33,35 @@ test: $(STAMP) chromium
 	$(PY) -m ruff check .
 	$(PY) -m pytest -q -m "not slow and not gpu"
 
-test-slow: $(STAMP)
+# the production recipe's slow test makes its own PostgreSQL cluster (Debian's package; initdb, pg_ctl);
+# only the slow tests need it, and that test says why it is skipped where it is missing
+postgresql:
+	ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q postgresql; }
+
+test-slow: $(STAMP) postgresql
 	$(PY) -m pytest -q -m "slow"
 
 # the CUDA paths against the CPU ones; needs a CUDA build of torch and a GPU (skipped otherwise)
 test-gpu: $(STAMP)
-	$(PY) -m pytest -q -m "gpu"
+	$(PY) -m pytest -q -m "gpu" tests/gpu
+
+# A GPU machine without a package registry (docs/gpu.md). These run with that machine's own
+# python3 and its CUDA torch: no .venv. `make gpu-wheels` runs first where PyPI is reachable and
+# fills $(GPU_WHEELS) (ignored by git, carried to the machine); the other two install those wheels
+# into a temporary target. DEVICE=cpu is their smoke mode on a machine without a GPU.
+GPU_PYTHON ?= python3
+GPU_PYVER ?= 3.12
+GPU_WHEELS ?= gpu-wheels
+DEVICE ?= cuda
+gpu-wheels:
+	$(PYTHON) bench/gpu_wheels.py download --dest $(GPU_WHEELS) --python-version $(GPU_PYVER)
+
+gpu-check:
+	$(GPU_PYTHON) bench/gpu_check.py --device $(DEVICE) --wheels $(GPU_WHEELS) $(ARGS)
+
+gpu-train:
+	@test -n "$(OUT)" || { echo "usage: make gpu-train OUT=DIR (a new folder, or one to resume)"; exit 2; }
+	$(GPU_PYTHON) bench/gpu_train.py --out $(OUT) --device $(DEVICE) --wheels $(GPU_WHEELS) $(ARGS)
 
 bench: $(STAMP)
 	for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done

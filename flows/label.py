@@ -18,21 +18,23 @@ from prefect import flow, get_run_logger
 from flows.request import LabelRequest
 from flows.run_record import check_same_log, new_run_id, record_run, report_run
 from flows.stage_loop import RunState, run_stage
+from storage.errors import StoreError
 from storage.locks import LockSet, Owner
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
 
 
-def label(request: LabelRequest) -> list[dict[str, Any]]:
+def label(request: LabelRequest, isolate: bool = False) -> list[dict[str, Any]]:
     """The body of both flows. Returns one summary row per (sequence, stage), plus one per failed
-    sequence."""
+    sequence. With ``isolate`` a sequence that fails leaves the run and the others go on (the
+    scheduled tick's policy: its bad files are tried again next time, not quarantined)."""
     pipeline = request.pipeline()
     reader = request.open_log()
     sequences = request.sequences if request.sequences is not None else reader.sequences()
     store = RunStore(request.root, request.storage_options)
     check_same_log(store, request)
     run_id = new_run_id()
-    state = RunState(run_id, request.order(pipeline), request.options, log=get_run_logger())
+    state = RunState(run_id, request.order(pipeline), request.options, log=get_run_logger(), isolate=isolate)
     forced = request.forced(pipeline)
     with stage_locks(store, pipeline, state.stages, sequences, run_id, request):
         run = record_run(store, run_id, request, pipeline, reader.format, sequences)  # lock winners only
@@ -41,15 +43,24 @@ def label(request: LabelRequest) -> list[dict[str, Any]]:
         )
         for stage in state.stages:
             run_stage(store, pipeline, stage, sequences, run, state, force=stage in forced)
-    summary = state.rows()
-    report_run(store, run_id, summary)
-    if "score" in state.stages:  # report tables, dashboard and score artifacts
-        from flows.publish import publish
+        summary = state.rows()
+        report_run(store, run_id, summary)
+        if "score" in state.stages or pipeline.labels in state.stages:  # report, dashboard, artifacts
+            _publish(request, pipeline, state.log)  # still under the locks: another run waits
+    return summary
 
+
+def _publish(request: LabelRequest, pipeline: Pipeline, log) -> None:
+    """The report tables, dashboard and artifacts. A store another run is changing (sequences this
+    run did not lock) leaves the report as it was, with a warning: the run's labels are done."""
+    from flows.publish import publish
+
+    try:
         publish(
             request.root, request.dataset_name(), storage_options=request.storage_options, pipeline=pipeline
         )
-    return summary
+    except StoreError as exc:
+        log.warning("the report was not refreshed (%s); `dsnet dashboard %s` rebuilds it", exc, request.root)
 
 
 @contextlib.contextmanager
@@ -100,6 +111,9 @@ def task_runner(workers: int | None = None, dask_address: str | None = None):
 
         logging.getLogger("distributed").setLevel(logging.WARNING)
         if dask_address:
+            from flows.services import check_dask_scheduler
+
+            check_dask_scheduler(dask_address)  # once more: the check may have run minutes ago
             return DaskTaskRunner(address=dask_address)
         return DaskTaskRunner(  # scheduler and dashboard on loopback: nothing listens on 0.0.0.0
             cluster_kwargs={

@@ -1,10 +1,12 @@
-"""After labelling: the score report, the dashboard and the Prefect artifacts of a run store.
+"""After labelling: the report, the dashboard and the Prefect artifacts of a run store.
 
-``publish(root, dataset)`` writes the report tables (merged accumulators), the dashboard
-(``ROOT/dashboard.html``) and, inside a flow run, two artifacts with stable keys so the Prefect UI
-shows the latest per dataset: ``score-summary-<dataset>`` (markdown: headline numbers, the
-dashboard's location) and ``score-classes-<dataset>`` (table: per-class PQ/SQ/RQ/IoU).
-The labelling flow's own progress and summary artifacts stay as they are.
+``publish(root, dataset)`` writes the report tables — the labelling report of every run, with or
+without ground truth, and the score report (merged accumulators) where ground truth was scored —
+and the dashboard (``ROOT/dashboard.html``). Inside a flow run, a scored run also gets two
+artifacts with stable keys so the Prefect UI shows the latest per dataset:
+``score-summary-<dataset>`` (markdown: headline numbers, the dashboard's location) and
+``score-classes-<dataset>`` (table: per-class PQ/SQ/RQ/IoU). The labelling flow's own progress and
+summary artifacts stay as they are.
 """
 
 from __future__ import annotations
@@ -33,6 +35,41 @@ def write_frame_confidence(store: RunStore, pipeline: Pipeline | None = None) ->
     rows = frame_confidence_rows(store, pipeline, store.sequences())
     store.write_run_table(REPORT_TABLES["frame_confidence"], rows)
     return len(rows)
+
+
+def report_is_current(store: RunStore) -> bool:
+    """Whether the store's report was made from the stages it holds now: the labelling report is
+    there, every (sequence, stage) its ``stage_timings`` table recorded is still done with the same
+    fingerprint, and no sequence has finished stages the report does not know."""
+    from flows.report.tables import REPORT_TABLES
+
+    timings, label_run = REPORT_TABLES["stage_timings"], REPORT_TABLES["label_run"]
+    if not (store.has_table(timings) and store.has_table(label_run)):
+        return False
+    rows = store.read_all(timings).select(["sequence", "stage", "fingerprint"]).to_pylist()
+    for r in rows:
+        m = store.read_manifest(r["sequence"], r["stage"])
+        if m is None or m.status != "done" or m.fingerprint != r["fingerprint"]:
+            return False
+    return {r["sequence"] for r in rows} >= set(store.sequences())
+
+
+def refresh_report(root: str, storage_options: dict | None = None) -> bool:
+    """Write the report of run ``root`` unless it is current (:func:`report_is_current`); whether it
+    was written.
+
+    Raises:
+        StoreError: ``root`` is no run folder.
+        DataFormatError: the report had to be written and the run's log no longer opens.
+    """
+    from tasks.run_config import read_run
+
+    store = RunStore(root, storage_options)
+    run = read_run(store)  # a file, or a folder that is no run store, is refused here
+    if report_is_current(store):
+        return False
+    write_report(store, run.pipeline())
+    return True
 
 
 def dataset_key(name: str) -> str:
@@ -106,15 +143,15 @@ def publish(
     ``pipeline`` is the run's method (default: the one its run config records).
 
     Returns:
-        ``{"scored": bool, "dashboard": location or None, "headline": {...}}``.
+        ``{"scored": bool, "dashboard": location, "headline": {...}}`` (headline: empty when
+        nothing was scored).
     """
     store = RunStore(root, storage_options)
-    write_frame_confidence(store, pipeline)
     report = write_report(store, pipeline)
+    dashboard = write_dashboard(store)
     if report is None:
         log.info("nothing scored in %s (no ground truth, or no score stage yet)", store.uri)
-        return {"scored": False, "dashboard": None, "headline": {}}
-    dashboard = write_dashboard(store)
+        return {"scored": False, "dashboard": dashboard, "headline": {}}
     if artifacts:
         from prefect.artifacts import create_markdown_artifact, create_table_artifact
 

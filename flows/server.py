@@ -3,6 +3,10 @@
 Prefect's own temporary server is a child process stopped by ``atexit``; a SIGKILLed parent
 leaves it running. Ours asks the kernel (``PR_SET_PDEATHSIG``) to SIGTERM it when its parent
 dies, so a killed ``dsnet label`` or test session never orphans a server.
+
+This is the one module that relies on Prefect internals (``SubprocessASGIServer`` and its private
+``_run_uvicorn_command``, the ``PREFECT__SERVER_*`` variables, ``EventsWorker.drain_all``);
+``tests/flows/test_prefect_pins.py`` pins each, so an upgrade that changes one fails by name.
 """
 
 from __future__ import annotations
@@ -109,6 +113,9 @@ def prefect_api(startup_timeout: int = 90) -> Iterator[str]:
     quiet_prefect_env()
     existing = os.environ.get("PREFECT_API_URL")
     if existing:
+        from flows.services import check_prefect_api
+
+        check_prefect_api(existing)
         yield existing
         return
     from prefect.settings import PREFECT_API_URL, temporary_settings

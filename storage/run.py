@@ -27,6 +27,7 @@ table; ``full``: every chunk decoded and hashed) and returns what is damaged.
 
 from __future__ import annotations
 
+import os
 import posixpath
 from dataclasses import dataclass
 from pathlib import Path
@@ -108,9 +109,13 @@ class RunStore:
         """The latest run's config, or that of ``run_id``.
 
         Raises:
-            NoRunConfigError: no run config there.
-        StoreFormatError: one of another store format (:data:`STORE_FORMAT`).
+            NoRunConfigError: no run config there (or the root is a file).
+            StoreFormatError: one of another store format (:data:`STORE_FORMAT`).
         """
+        if self.root.local and os.path.isfile(self.root.root):
+            raise NoRunConfigError(
+                self.root.root, "is a file, not a run folder (the folder `dsnet label --run` wrote)"
+            )
         rel = "run.json" if run_id is None else f"runs/{run_id}.json"
         cfg = self.root.read_json(rel)
         if cfg is None:
@@ -279,6 +284,18 @@ class RunStore:
         self.root.remove(posixpath.join(base, "arrays.zarr"), recursive=True)
         self.root.remove(posixpath.join(base, "state.json"))
 
+    def stage_bytes(self, sequence: str, contract: StageContract) -> dict[str, int]:
+        """Bytes a (sequence, stage) occupies: ``arrays`` (its zarr group), ``records`` (block
+        fragments, item records, block bytes, manifest, state) and ``tables`` (its partitions of its
+        tables). One listing of the stage folder and one per table partition."""
+        out = {"arrays": 0, "records": 0, "tables": 0}
+        for rel, size in self.root.sizes(self.stage_rel(sequence, contract.stage)).items():
+            out["arrays" if rel.startswith("arrays.zarr/") else "records"] += size
+        for spec in contract.tables:
+            rel = partition_rel(spec, {"sequence": sequence})
+            out["tables"] += sum(self.root.sizes(rel).values())
+        return out
+
     # -- integrity -------------------------------------------------------------------------------
     def check_stage(
         self, sequence: str, contract: StageContract, manifest: Manifest, full: bool = False
@@ -424,6 +441,13 @@ class RunStore:
         put_file(self.root, rel, data)
         self.root.write_json(record, {"size": len(data), "blake2b": digest(data)})
         return rel
+
+    def remove_run_table(self, spec: TableSpec) -> None:
+        """Remove an unpartitioned table (its file first, then its record and folder)."""
+        rel, record = self.run_table_rels(spec)
+        self.root.remove(rel)
+        self.root.remove(record)
+        self.root.remove(posixpath.join("tables", spec.name), recursive=True)
 
     def check_run_table(self, spec: TableSpec, full: bool = False) -> list[Damage]:
         """What is damaged in an unpartitioned (report) table: cheap, its size against its record

@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 from tasks.base import CLASS_MAP, ItemResult, Plan, Stage, StageConfig, StageContext
-from tasks.infer import InferStage, _check_device, model_meta
+from tasks.infer import InferStage, _check_device, model_meta, thing_only
 
 
 class DplsConfig(StageConfig):
@@ -98,9 +98,15 @@ class DplsStage(Stage):
             pri = prior.read_item(item, ["prior", "sem"])
             offsets, features = predictor.predict(points, pri["sem"])
             n = int(points.shape[0])
+            is_thing = thing[pri["sem"]]  # shift reads offsets and features on these points only
             yield ItemResult(
                 item,
-                arrays={"sem": pri["sem"], "probs": pri["prior"], "offsets": offsets, "features": features},
+                arrays={
+                    "sem": pri["sem"],
+                    "probs": pri["prior"],
+                    "offsets": thing_only(offsets, is_thing, "float32"),
+                    "features": thing_only(features, is_thing, "float16"),
+                },
                 n_points=n,
-                counts={"volumes": 1, "points": n, "thing_points": int(thing[pri["sem"]].sum())},
+                counts={"volumes": 1, "points": n, "thing_points": int(is_thing.sum())},
             )

@@ -2,8 +2,11 @@
 
 Per point: ``sem`` (uint8 train id), ``probs`` (softmax probabilities quantised to uint8,
 ``p = q / 255``: 20 bytes a point instead of 40 for float16, error at most 1/510 — enough for
-confidences and review queues, not for calibration studies), ``offsets`` (float32 ×3, metres)
-and ``features`` (float16 ×32). A 4D volume goes through the network as one cloud.
+confidences and review queues, not for calibration studies; fuse, refine's soft votes and the
+report read the whole vector), ``offsets`` (float32 ×3, metres) and ``features`` (float16 ×32).
+A 4D volume goes through the network as one cloud. Offsets and features are kept on predicted
+thing points only (zeros elsewhere, which compress to almost nothing): ``shift`` reads them there
+and nothing reads them on stuff (:func:`thing_only`); the labels do not change.
 
 The widths of ``probs`` and ``features`` are the model's (its card's class map and instance
 feature size), recorded in the plan; so is the card's class map, which every downstream stage
@@ -89,6 +92,14 @@ def quantise_probs(probs: np.ndarray) -> np.ndarray:
     return t.mul_(255.0).round_().clamp_(0, 255).to(torch.uint8).numpy()
 
 
+def thing_only(values: np.ndarray, is_thing: np.ndarray, dtype: str) -> np.ndarray:
+    """Per-point ``values`` ``(N, ...)`` as a new ``dtype`` array with the rows of non-thing points
+    zeroed (``is_thing`` ``(N,) bool``): what ``shift`` reads of offsets and features, stored small."""
+    out = np.array(values, dtype=dtype, copy=True)
+    out[~is_thing] = 0
+    return out
+
+
 def dequantise_probs(q: np.ndarray) -> np.ndarray:
     """uint8 ``(N, C)`` → float32 probabilities ``q / 255``."""
     return np.asarray(q, np.float32) / np.float32(255.0)
@@ -108,7 +119,12 @@ class InferStage(Stage):
             trailing=("classes",),
             doc="softmax probabilities quantised to uint8: p = q / 255 (abs error <= 1/510)",
         ),
-        ArraySpec("offsets", "float32", trailing=(3,), doc="point -> instance centre, metres"),
+        ArraySpec(
+            "offsets",
+            "float32",
+            trailing=(3,),
+            doc="point -> instance centre, metres, on predicted thing points; 0 on stuff (never read)",
+        ),
         ArraySpec(
             "features",
             "float16",
@@ -170,15 +186,13 @@ class InferStage(Stage):
         for item, res in zip(items, predictor.predict_iter(clouds, ctx.config.batch), strict=True):
             n = int(res.sem.shape[0])
             is_thing = thing[res.sem]
-            features = res.features.astype(np.float16, copy=True)
-            features[~is_thing] = 0  # only shifting reads them, on thing points; zeros store in ~nothing
             yield ItemResult(
                 item,
                 arrays={
                     "sem": res.sem.astype(np.uint8),
                     "probs": quantise_probs(res.probs),
-                    "offsets": res.offsets.astype(np.float32),
-                    "features": features,
+                    "offsets": thing_only(res.offsets, is_thing, "float32"),
+                    "features": thing_only(res.features, is_thing, "float16"),
                 },
                 n_points=n,
                 counts={"volumes": 1, "points": n, "thing_points": int(is_thing.sum())},

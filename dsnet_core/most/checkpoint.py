@@ -25,9 +25,18 @@ from dsnet_core.model.checkpoint import (
     save_tensors,
     sha256_file,
 )
-from dsnet_core.most.card import MOST_FORMAT, read_most_card
+from dsnet_core.most.card import FORMATS, MOST_FORMAT, checkpoint_method, read_most_card
 from dsnet_core.most.config import MostConfig
 from dsnet_core.most.network import MostNet
+
+__all__ = [  # the card's names are re-exported: a checkpoint is its weights and its card
+    "FORMATS",
+    "MOST_FORMAT",
+    "checkpoint_method",
+    "load_most_checkpoint",
+    "read_most_card",
+    "save_most_checkpoint",
+]
 
 
 def save_most_checkpoint(path: str | Path, model: MostNet, card: ModelCard) -> Path:

@@ -20,6 +20,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 TERMS = ("semantic", "agreement", "size", "stitch")
+MIN_INSTANCE_POINTS = 30
+"""Instances smaller than this are fragments or spurious clusters: they lower a frame's ``size`` term
+and are not listed one by one in a review queue."""
 
 
 @dataclass(frozen=True)
@@ -42,7 +45,7 @@ def frame_confidence(
     instance_points: np.ndarray,
     instance_agreement: np.ndarray,
     link_iou: np.ndarray | None = None,
-    min_points: int = 30,
+    min_points: int = MIN_INSTANCE_POINTS,
 ) -> FrameConfidence:
     """Confidence of one frame.
 

@@ -24,8 +24,36 @@ def instance_colour(ids: np.ndarray) -> np.ndarray:
     return (rgb * 255).astype(np.uint8)
 
 
+DIM = 0.45
+"""Brightness of the class colour of stuff (and of things without an id) in :func:`label_colours`."""
+
+
+def class_colours(label_map: LabelMap) -> np.ndarray:
+    """The colour of each train id: the map's ``color_map`` of its raw id, else a stable hue.
+
+    Returns:
+        ``(num_classes, 3) uint8`` RGB; class 0 (ignored) is grey where the map gives no colour.
+    """
+    out = instance_colour(np.arange(label_map.num_classes) * 7 + 3)
+    out[0] = (128, 128, 128)
+    for train, raw in label_map.learning_map_inv.items():
+        bgr = label_map.color_map.get(raw)
+        if bgr is not None and 0 <= train < label_map.num_classes:
+            out[train] = np.asarray(bgr[::-1], dtype=np.uint8)
+    return out
+
+
+def class_point_colours(labels: np.ndarray, label_map: LabelMap) -> np.ndarray:
+    """Per point colour by class only (full brightness, :func:`class_colours`), for pictures with a
+    class legend: ``(N,) uint32`` raw ``sem | inst << 16`` -> ``(N, 3) uint8`` RGB."""
+    sem = (np.asarray(labels, dtype=np.uint32) & 0xFFFF).astype(np.int64)
+    train = label_map.lut(1 << 16, fill=0)[sem]
+    return class_colours(label_map)[train]
+
+
 def label_colours(labels: np.ndarray, label_map: LabelMap) -> np.ndarray:
-    """Per point colour: thing points with an instance id by instance, the rest by class (dimmed).
+    """Per point colour: thing points with an instance id by instance, the rest by class (dimmed by
+    :data:`DIM`).
 
     Args:
         labels: ``(N,) uint32`` raw ``sem | inst << 16``.
@@ -40,7 +68,7 @@ def label_colours(labels: np.ndarray, label_map: LabelMap) -> np.ndarray:
     lut = np.zeros((1 << 16, 3), dtype=np.uint8)
     for raw, bgr in label_map.color_map.items():
         if 0 <= raw < 1 << 16:
-            lut[raw] = (np.asarray(bgr[::-1], dtype=np.float64) * 0.45).astype(np.uint8)
+            lut[raw] = (np.asarray(bgr[::-1], dtype=np.float64) * DIM).astype(np.uint8)
     train = label_map.lut(1 << 16, fill=0)
     out = lut[sem]
     thing = np.isin(train[sem], np.asarray(label_map.things)) & (inst > 0)

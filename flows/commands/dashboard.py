@@ -1,4 +1,5 @@
-"""``dsnet dashboard``: the evaluation dashboard of one or more scored run stores."""
+"""``dsnet dashboard``: the dashboard of one or more run stores (labelled, and scored where the log
+has ground truth)."""
 
 from __future__ import annotations
 
@@ -6,17 +7,23 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def dashboard(
     roots: list[str] = typer.Argument(..., help="Run store roots; the first is the baseline (A) for deltas."),
     out: Path = typer.Option(Path("dashboard.html"), "--out", help="HTML file to write."),
-    title: str = typer.Option("dsnet evaluation", help="Page title."),
+    title: str = typer.Option("dsnet run report", help="Page title."),
 ) -> None:
-    """Write a self-contained HTML dashboard (works offline) from the runs' score tables."""
+    """Write a self-contained HTML dashboard (works offline) from the runs' report tables: what was
+    labelled, confidence, tracks, refinement, timings, the review queue, and the scores where the
+    log has ground truth. A run whose report is missing or older than its stages gets it rewritten."""
     from flows.dashboard import build_dashboard
+    from flows.publish import refresh_report
 
     with errors_exit():
+        check_output(out, "--out", "file")
+        for root in roots:
+            refresh_report(root)
         path = build_dashboard(roots, out, title)
     typer.echo(f"wrote dashboard {path.resolve()}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def synth(
@@ -25,7 +25,7 @@ def synth(
         "classic",
         help="Street: classic, residential, arterial, downtown, junction, parking_lot, country, or random "
         "(drawn per sequence). Anything but classic with hdl64/vlp32 also draws the sensor's mounting, "
-        "noise and remission per sequence; each sequence's choices go to sequences/SS/synth.json.",
+        "noise and remission per sequence; each sequence's choices go to synth.json in its folder.",
     ),
     physics: list[str] = typer.Option(
         None,
@@ -38,6 +38,7 @@ def synth(
     from dsnet_core.synth.physics import parse_physics
 
     with errors_exit():
+        check_output(out, "OUT", "folder")
         altered = parse_physics(physics)
         generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style, altered)
     what = sensor if style == "classic" else f"{style} street, {sensor}"

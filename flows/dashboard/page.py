@@ -8,28 +8,57 @@ from pathlib import Path
 
 from . import sections
 from .assets import CSS, JS
+from .confidence import confidence
 from .data import RunTables, load_run
 from .fmt import esc
+from .labelled import labelled, tracks
+from .refinement import refinement
 
 log = logging.getLogger(__name__)
 
-SECTIONS = (
+SCORED = (
     ("s-headline", "Headline", sections.headline),
     ("s-classes", "Classes", sections.classes),
     ("s-sequences", "Sequences", sections.sequences),
     ("s-frames", "Frames", sections.frames),
-    ("s-timings", "Timings", sections.timings),
     ("s-worst", "Worst frames", sections.worst_frames),
+)
+"""Sections of the runs scored against ground truth."""
+LABELLED = (
+    ("s-labelled", "Labelled", labelled),
+    ("s-confidence", "Confidence", confidence),
+    ("s-tracks", "Tracks", tracks),
+)
+"""Sections of every run with a labelling report (with or without ground truth)."""
+REFINED = (("s-refine", "Refinement", refinement),)
+"""Sections of runs the refine stage labelled."""
+ALL = (
+    ("s-timings", "Timings", sections.timings),
     ("s-review", "Review queue", sections.review),
 )
+"""Sections of every run."""
 
 
-def render_dashboard(runs: list[RunTables], title: str = "dsnet evaluation") -> str:
+def page_sections(runs: list[RunTables]) -> list[tuple[str, str, str]]:
+    """``(id, name, html)`` of the sections the runs have: scored ones over the scored runs,
+    labelling ones over the runs with a labelling report, the rest over all."""
+    scored = [r for r in runs if r.scored]
+    labelled_ = [r for r in runs if r.labelled is not None]
+    refined = [r for r in labelled_ if r.labelled.refined]
+    out = []
+    for group, members in ((SCORED, scored), (LABELLED, labelled_), (REFINED, refined), (ALL, runs)):
+        if members:
+            out += [(sid, name, fn(members)) for sid, name, fn in group]
+    return out
+
+
+def render_dashboard(runs: list[RunTables], title: str = "dsnet run report") -> str:
     """The whole page as one HTML string (self-contained: no external requests)."""
     if not runs:
         raise ValueError("render_dashboard needs at least one run")
-    nav = "".join(f'<a href="#{sid}">{name}</a>' for sid, name, _ in SECTIONS)
-    body = "".join(fn(runs) for _, _, fn in SECTIONS)
+    parts = page_sections(runs)
+    nav = "".join(f'<a href="#{sid}">{name}</a>' for sid, name, _ in parts)
+    body = "".join(html for _, _, html in parts)
     roots = " · ".join(f"{esc(r.label)} = {esc(r.root)}" for r in runs)
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     return (
@@ -44,9 +73,9 @@ def render_dashboard(runs: list[RunTables], title: str = "dsnet evaluation") -> 
 
 
 def build_dashboard(
-    roots: list[str], out: str | Path, title: str = "dsnet evaluation", storage_options: dict | None = None
+    roots: list[str], out: str | Path, title: str = "dsnet run report", storage_options: dict | None = None
 ) -> Path:
-    """Read the score report tables of each run root and write the dashboard to ``out``.
+    """Read the report tables of each run root and write the dashboard to ``out``.
 
     Args:
         roots: run store URIs; the first is the baseline "A" that deltas refer to.

@@ -29,12 +29,27 @@ HEADLINE = (
 CLASS_COLS = (("pq", "PQ"), ("sq", "SQ"), ("rq", "RQ"), ("iou", "IoU"))
 
 
-def _tag(i: int) -> str:
+def tag(i: int) -> str:
     return f'<span class="swatch" style="background:{svg.colour(i)}"></span>'
 
 
-def _head(cols: Sequence[str]) -> str:
+def head(cols: Sequence[str]) -> str:
     return "<thead><tr>" + "".join(f"<th>{c}</th>" for c in cols) + "</tr></thead>"
+
+
+def legend(rows: Sequence[dict], dim: bool = False, note: str = "") -> str:
+    """A class-colour legend of ``class_legend`` rows (``dim``: stuff in its dimmed colour, as in the
+    instance pictures), with an optional note after it."""
+
+    def colour(r: dict) -> str:
+        return r["colour_dim"] if dim and r["kind"] != "thing" else r["colour"]
+
+    keys = "".join(
+        f'<span class="key" data-class="{esc(r["class"])}"><span class="swatch" style="background:'
+        f'{esc(colour(r))}"></span>{esc(r["class"])}</span>'
+        for r in rows
+    )
+    return f'<div class="legend">{keys}{f"<span class=note>{esc(note)}</span>" if note else ""}</div>'
 
 
 def headline(runs: list[RunTables]) -> str:
@@ -45,7 +60,7 @@ def headline(runs: list[RunTables]) -> str:
         f"{fmt.score(a[key])}</div><div>{name}</div></div>"
         for key, name in HEADLINE[:1] + HEADLINE[6:8] + HEADLINE[4:6]
     )
-    cols = ["metric"] + [f"{_tag(r)}{esc(run.label)}" for r, run in enumerate(runs)]
+    cols = ["metric"] + [f"{tag(r)}{esc(run.label)}" for r, run in enumerate(runs)]
     cols += [f"Δ {esc(run.label.split(' ')[0])} − A" for run in runs[1:]]
     body = []
     for key, name in HEADLINE:
@@ -56,7 +71,7 @@ def headline(runs: list[RunTables]) -> str:
                 fmt.delta(run.run[key], a[key]),
                 f"delta:{r}:{key}",
                 None if run.run[key] is None or a[key] is None else run.run[key] - a[key],
-                cls=_sign(run.run[key], a[key]),
+                cls=sign(run.run[key], a[key]),
             )
             for r, run in enumerate(runs)
             if r > 0
@@ -77,13 +92,11 @@ def headline(runs: list[RunTables]) -> str:
         cells += [cell(show(run.run[key]), f"run:{r}:{key}", run.run[key]) for r, run in enumerate(runs)]
         cells += ["<td></td>"] * (len(runs) - 1)
         meta_rows.append("<tr class='meta'>" + "".join(cells) + "</tr>")
-    table = (
-        f'<table class="num" id="headline">{_head(cols)}<tbody>{"".join(body + meta_rows)}</tbody></table>'
-    )
+    table = f'<table class="num" id="headline">{head(cols)}<tbody>{"".join(body + meta_rows)}</tbody></table>'
     return f'<section id="s-headline"><h2>Headline</h2><div class="cards">{cards}</div>{table}</section>'
 
 
-def _sign(v, base) -> str:
+def sign(v, base) -> str:
     if v is None or base is None or v == base:
         return ""
     return "up" if v > base else "down"
@@ -91,14 +104,14 @@ def _sign(v, base) -> str:
 
 def classes(runs: list[RunTables]) -> str:
     """Per-class PQ/SQ/RQ/IoU tables and bars, things and stuff apart."""
-    legend = " ".join(f"{_tag(r)}{esc(run.label)}" for r, run in enumerate(runs))
+    legend = " ".join(f"{tag(r)}{esc(run.label)}" for r, run in enumerate(runs))
     parts = [f'<section id="s-classes"><h2>Classes</h2><p class="note">{legend}</p>']
     for kind in ("thing", "stuff"):
         names = [c["class"] for c in runs[0].classes if c["kind"] == kind]
         by_run = [{c["class"]: c for c in run.classes} for run in runs]
         cols = ["class"]
         for r in range(len(runs)):
-            cols += [f"{_tag(r)}{n}" for _, n in CLASS_COLS]
+            cols += [f"{tag(r)}{n}" for _, n in CLASS_COLS]
         cols += [f"Δ PQ {run.label.split(' ')[0]}" for run in runs[1:]]
         body = []
         for name in names:
@@ -109,7 +122,7 @@ def classes(runs: list[RunTables]) -> str:
             base = by_run[0][name]["pq"]
             for r, rows in enumerate(by_run[1:], start=1):
                 v = rows.get(name, {}).get("pq")
-                cells.append(cell(fmt.delta(v, base), f"cdelta:{r}:{name}", None, cls=_sign(v, base)))
+                cells.append(cell(fmt.delta(v, base), f"cdelta:{r}:{name}", None, cls=sign(v, base)))
             body.append("<tr>" + "".join(cells) + "</tr>")
         series = [run.label for run in runs]
         bars_pq = svg.hbars(
@@ -127,7 +140,7 @@ def classes(runs: list[RunTables]) -> str:
         title = "Things" if kind == "thing" else "Stuff"
         parts.append(
             f"<h3>{title}</h3>"
-            f'<table class="num sortable" id="classes-{kind}">{_head(cols)}'
+            f'<table class="num sortable" id="classes-{kind}">{head(cols)}'
             f"<tbody>{''.join(body)}</tbody></table>"
             f'<div class="row"><figure><figcaption>PQ (%)</figcaption>{bars_pq}</figure>'
             f"<figure><figcaption>IoU (%)</figcaption>{bars_iou}</figure></div>"
@@ -147,7 +160,7 @@ def sequences(runs: list[RunTables]) -> str:
     )
     names = sorted({s["sequence"] for run in runs for s in run.sequences})
     by_run = [{s["sequence"]: s for s in run.sequences} for run in runs]
-    cols = ["sequence"] + [f"{_tag(r)}{n}" for r in range(len(runs)) for _, n, _ in keys]
+    cols = ["sequence"] + [f"{tag(r)}{n}" for r in range(len(runs)) for _, n, _ in keys]
     body = []
     for name in names:
         cells = [f"<td>{esc(name)}</td>"]
@@ -160,7 +173,7 @@ def sequences(runs: list[RunTables]) -> str:
         body.append("<tr>" + "".join(cells) + "</tr>")
     return (
         '<section id="s-sequences"><h2>Sequences</h2>'
-        f'<table class="num sortable" id="sequences">{_head(cols)}'
+        f'<table class="num sortable" id="sequences">{head(cols)}'
         f"<tbody>{''.join(body)}</tbody></table></section>"
     )
 
@@ -243,7 +256,7 @@ def timings(runs: list[RunTables]) -> str:
                 + "</tr>"
             )
         parts.append(
-            f"<h3>{_tag(r)}{esc(run.label)}</h3><table class='num' id='timings-{r}'>{_head(cols)}"
+            f"<h3>{tag(r)}{esc(run.label)}</h3><table class='num' id='timings-{r}'>{head(cols)}"
             f"<tbody>{''.join(body)}</tbody></table>"
         )
     secs = [[next((s["block_s"] for s in tot if s["stage"] == st), None) for st in stages] for tot in totals]
@@ -278,7 +291,11 @@ def worst_frames(runs: list[RunTables]) -> str:
                 "</figcaption></figure>"
             )
         body = "".join(figs) or "<p class='note'>no pictures in this run</p>"
-        parts.append(f"<h3>{_tag(r)}{esc(run.label)}</h3><div class='gallery'>{body}</div>")
+        parts.append(f"<h3>{tag(r)}{esc(run.label)}</h3><div class='gallery'>{body}</div>")
+        truth = run.labelled.legend_truth if run.labelled is not None else {}
+        if figs and truth:
+            rows = [row for row in truth.values() if row["kind"] == "stuff"]
+            parts.append(legend(rows, dim=True, note="things: one colour per instance"))
     parts.append("</section>")
     return "".join(parts)
 
@@ -303,11 +320,11 @@ def review(runs: list[RunTables]) -> str:
                 + "</tr>"
             )
         table = (
-            f"<div class='scroll'><table class='num' id='review-{r}'>{_head(cols)}"
+            f"<div class='scroll'><table class='num' id='review-{r}'>{head(cols)}"
             f"<tbody>{''.join(body)}</tbody></table></div>"
             if body
             else "<p class='note'>no instance table with confidences in this run</p>"
         )
-        parts.append(f"<h3>{_tag(r)}{esc(run.label)}</h3>{table}")
+        parts.append(f"<h3>{tag(r)}{esc(run.label)}</h3>{table}")
     parts.append("</section>")
     return "".join(parts)

@@ -1,30 +1,32 @@
-"""The dataset-level score report: merge every scored sequence's accumulators, write report tables.
+"""The run report: the labelling report of every run (:mod:`flows.report.label_report`), then the
+dataset-level score report where ground truth was scored.
 
-Reads the score stage's block states and ``frame_metrics`` table, the manifests, and (for the
-pictures) the scans, final labels and ground truth of the worst frames; writes the tables of
-:data:`flows.report.tables.REPORT_TABLES` under ``ROOT/tables/``. Every dataset-level number
-comes from merged accumulators. Safe to call again at any time: it rewrites the tables whole.
+The score report reads the score stage's block states and ``frame_metrics`` table, the manifests,
+and (for the pictures) the scans, final labels and ground truth of the worst frames; where refine
+made the final labels, it scores the labels refine read too (:mod:`flows.report.refined`). It
+writes the tables of :data:`flows.report.tables.REPORT_TABLES` under ``ROOT/tables/``. Every
+dataset-level number comes from merged accumulators. Safe to call again at any time: it rewrites
+the tables whole.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from dsnet_core.labels import label_map_from_class_map
+from dsnet_core.labels import LabelMap
 from dsnet_core.metrics import EvalResult
 from dsnet_core.metrics.nuscenes_scorer import NuScenesScorer
 from dsnet_core.metrics.scoring import Scorer, restore_scorer
 from dsnet_core.metrics.state import state_from_bytes
-from flows.report.pictures import bev_rows
-from flows.report.review import review_queue
+from flows.report.facts import config_hash, model_plan, timing_rows  # noqa: F401 (model_plan, timing_rows: re-exported)
+from flows.report.label_report import LabelReport, write_label_report
+from flows.report.pictures import bev_rows, legend_rows
+from flows.report.refined import before_evaluators, refine_score_rows
 from flows.report.tables import HEADLINE_KEYS, REPORT_TABLES, SCORING_KEYS
 from storage.run import RunStore
-from tasks.base import CLASS_MAP
 from tasks.pipeline import Pipeline
 from tasks.run_config import RunConfig, read_run
 from tasks.score import FRAME_METRICS, ScoreConfig, block_state_name, make_evaluator
@@ -40,6 +42,7 @@ class ScoreReport:
     sequences: list[dict[str, Any]] = field(default_factory=list)
     classes: list[dict[str, Any]] = field(default_factory=list)
     tables: dict[str, str] = field(default_factory=dict)
+    truth_map: LabelMap | None = None  # the ground truth's label map (the scored pictures' colours)
 
 
 def sequence_evaluator(store: RunStore, sequence: str, label_map, model_map=None) -> Scorer | None:
@@ -94,43 +97,49 @@ def _headline(res: EvalResult) -> dict[str, float | None]:
     return out
 
 
-def config_hash(run: RunConfig) -> str:
-    """sha256[:16] of the run's stage configs (what decides the labels and the scores)."""
-    payload = json.dumps(run.stages, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(payload.encode()).hexdigest()[:16]
-
-
-def model_plan(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> dict[str, Any]:
-    """The plan of the first stage (the labels stage or one upstream of it) that recorded the
-    model's class map: it holds ``model_card`` (``<checkpoint folder>@<weights sha256[:12]>``) and
-    the class map. Empty when no model stage ran."""
-    for seq in sequences:
-        for stage in [*pipeline.upstream_closure(pipeline.labels), pipeline.labels]:
-            m = store.read_manifest(seq, stage)
-            if m is not None and CLASS_MAP in m.plan:
-                return m.plan
-    return {}
+SCORE_TABLES = ("score_run", "score_sequences", "score_classes", "score_bev", "refine_scores")
+"""The tables only a scored run has (removed when a run no longer scores anything)."""
 
 
 def write_report(
     store: RunStore, pipeline: Pipeline | None = None, bev_frames: int = 6, review_rows: int = 30
 ) -> ScoreReport | None:
-    """Merge the scored sequences and write the report tables. Returns None when nothing is scored.
+    """Write the labelling report of every run (:func:`~flows.report.label_report.write_label_report`)
+    and, where ground truth was scored, the score report. Returns the score report (None when
+    nothing is scored; score tables of an earlier scored run are then removed).
 
     Args:
         pipeline: the run's method (default: the one its run config records).
+        bev_frames: pictures of this many worst (scored) and least confident frames.
+        review_rows: instances in the review queue.
     """
     run = read_run(store)
     pipeline = pipeline or run.pipeline()
+    labelled = write_label_report(store, pipeline, run, bev_frames, review_rows)
+    scored = _score_report(store, pipeline, run, labelled, bev_frames)
+    legend = legend_rows(labelled.label_map) if labelled.label_map is not None else []
+    if scored is not None:
+        legend += legend_rows(scored.truth_map, "truth")
+    else:
+        for name in SCORE_TABLES:
+            store.remove_run_table(REPORT_TABLES[name])
+    store.write_run_table(REPORT_TABLES["class_legend"], legend)
+    return scored
+
+
+def _score_report(
+    store: RunStore, pipeline: Pipeline, run: RunConfig, labelled: LabelReport, bev_frames: int
+) -> ScoreReport | None:
+    """Merge the scored sequences and write the score report tables (None when nothing is scored)."""
     sequences = sorted(store.sequences())
     if SCORE not in pipeline or not any(_scored(store, s) for s in sequences):
         return None
     gt_map = run.open_log().label_map
-    model = model_plan(store, pipeline, sequences)
-    model_map = label_map_from_class_map(model[CLASS_MAP]) if CLASS_MAP in model else None
+    model, model_map = labelled.model, labelled.label_map
     evals = {s: ev for s in sequences if (ev := sequence_evaluator(store, s, gt_map, model_map)) is not None}
     if not evals:
         return None
+    before = before_evaluators(store, pipeline, run, list(evals), gt_map, model_map)
     total: Scorer | None = None
     seq_rows = []
     frames = _frame_table(store, sequences)
@@ -182,14 +191,13 @@ def write_report(
         **scoring_columns(total),
         "created": time.time(),
     }
-    out = ScoreReport(run_row, seq_rows, class_rows)
+    out = ScoreReport(run_row, seq_rows, class_rows, truth_map=total.label_map)
     for name, rows in (
         ("score_run", [run_row]),
         ("score_sequences", seq_rows),
         ("score_classes", class_rows),
-        ("stage_timings", timing_rows(store, pipeline, sequences)),
         ("score_bev", bev_rows(store, pipeline, run, frames, total.label_map, bev_frames, to_gt)),
-        ("review_queue", review_queue(store, pipeline, sequences, model_map, review_rows)),
+        ("refine_scores", refine_score_rows(before, seq_rows, class_rows, run_row)),
     ):
         out.tables[name] = store.write_run_table(REPORT_TABLES[name], rows)
     return out
@@ -203,32 +211,6 @@ def _scored(store: RunStore, sequence: str) -> bool:
 def _frame_table(store: RunStore, sequences: list[str]) -> dict[str, dict[str, list]]:
     """``frame_metrics`` by sequence (columns as lists), only sequences whose score stage is done."""
     return {s: store.read_table(s, FRAME_METRICS).to_pydict() for s in sequences if _scored(store, s)}
-
-
-def timing_rows(store: RunStore, pipeline: Pipeline, sequences: list[str]) -> list[dict[str, Any]]:
-    """One row per finished (sequence, stage) from its manifest's timings and counts."""
-    rows = []
-    for seq in sequences:
-        for stage in pipeline.names():
-            m = store.read_manifest(seq, stage)
-            if m is None or m.status != "done":
-                continue
-            block_s = float(m.timings.get("block_s", 0.0))
-            points = int(m.counts.get("points", 0))
-            rows.append(
-                {
-                    "sequence": seq,
-                    "stage": stage,
-                    "items": m.n_items,
-                    "points": points,
-                    "wall_s": float(m.timings.get("wall_s", 0.0)),
-                    "block_s": block_s,
-                    "items_per_s": m.n_items / block_s if block_s > 0 else None,
-                    "points_per_s": points / block_s if block_s > 0 else None,
-                    "fingerprint": m.fingerprint,
-                }
-            )
-    return rows
 
 
 def read_report_table(store: RunStore, name: str):

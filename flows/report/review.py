@@ -3,6 +3,9 @@ the ``confidence`` role (see :class:`storage.contract.TableSpec`).
 
 A table takes part by declaring roles for its columns: ``confidence`` (required), and ``id``,
 ``class_id``, ``points`` and ``item`` where it has them; nothing is guessed from column names.
+Instances under :data:`~dsnet_core.review.confidence.MIN_INSTANCE_POINTS` points (fragments, 1-point
+clusters: the least confident by far, and nothing a person can check) are left out; the frame
+confidence's ``size`` term counts them.
 """
 
 from __future__ import annotations
@@ -11,14 +14,21 @@ import math
 from typing import Any
 
 from dsnet_core.labels import LabelMap
+from dsnet_core.review.confidence import MIN_INSTANCE_POINTS
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
 
 
 def review_queue(
-    store: RunStore, pipeline: Pipeline, sequences: list[str], label_map: LabelMap | None, n: int
+    store: RunStore,
+    pipeline: Pipeline,
+    sequences: list[str],
+    label_map: LabelMap | None,
+    n: int,
+    min_points: int = MIN_INSTANCE_POINTS,
 ) -> list[dict[str, Any]]:
-    """The ``n`` least confident instances across sequences and declaring tables.
+    """The ``n`` least confident instances of at least ``min_points`` points (where the table
+    declares a ``points`` role) across sequences and declaring tables.
 
     Args:
         label_map: the model's label map, for class names (None: class ids as text).
@@ -38,6 +48,8 @@ def review_queue(
                 t = store.read_table(seq, spec).to_pydict()
                 for r, conf in enumerate(t[conf_col]):
                     if conf is None or not math.isfinite(conf):
+                        continue
+                    if pts_col is not None and (t[pts_col][r] or 0) < min_points:
                         continue
                     cls = None if cls_col is None else t[cls_col][r]
                     if cls is not None and 0 <= cls < len(names):

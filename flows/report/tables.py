@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pyarrow as pa
 
+from flows.report.label_tables import LABEL_TABLES
 from storage.contract import TableSpec
 
 _HEADLINE = [
@@ -183,4 +184,4 @@ REPORT_TABLES: dict[str, TableSpec] = {
         REVIEW_QUEUE,
         FRAME_CONFIDENCE,
     )
-}
+} | LABEL_TABLES

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 Temporal = Literal["auto", "stitch", "track"]
 TEMPORAL_KINDS = ("stitch", "track")
 """How instance ids become sequence-wide: stitching overlapping volumes, or tracking instances."""
-REFINE_DEFAULT = False
+REFINE_DEFAULT = True
 """Whether a method's pipeline ends with the ``refine`` stage when the run does not say
 (``dsnet label --refine/--no-refine``); chosen by ``bench/bench_refine.py`` (docs/refine.md)."""
 DEVICE = re.compile(r"^(cpu|cuda(:\d+)?)$")
@@ -91,13 +91,15 @@ class TrainOptions(BaseModel):
     epochs: str = Field("10", description="Epochs: N for every stage, or per stage 'a=N,b=M'.")
     device: str = Field("cpu", description="cpu, cuda or cuda:N.")
     resume: bool = Field(False, description="Continue the checkpoint in --out.")
-    init_from: Path | None = Field(None, description="Start from this checkpoint's weights.")
+    init_from: Path | None = Field(
+        None, description="Start from this checkpoint's weights ('bundled': the method's bundled model)."
+    )
     sequences: str | None = Field(None, description="Comma-separated training sequences (default: all).")
     val_data: Path | None = Field(None, description="Validation log root (default: DATA).")
     val_sequences: str | None = Field(None, description="Validation sequences (default: the training ones).")
     lr: float = Field(1e-3, gt=0, description="Adam learning rate (the start of each stage's schedule).")
     seed: int = Field(0, ge=0, description="Seed of initialisation, shuffling and augmentation.")
-    augment: bool = Field(True, description="Yaw/flip/scale/translation augmentation.")
+    augment: bool = Field(True, description="Yaw, flip, scale and translation augmentation.")
     threads: int = Field(1, ge=1, description="Torch CPU threads.")
 
     @field_validator("device")
@@ -112,8 +114,20 @@ class TrainOptions(BaseModel):
         rest; ``"a=3,b=1"`` → per stage, unnamed stages 0.
 
         Raises:
-            ValueError: an unknown stage, a count that is not a whole number ≥ 0.
+            ValueError: an unknown stage, a count that is not a whole number ≥ 0, or 0 epochs for
+                every stage (nothing would be trained, yet a checkpoint written).
         """
+        out = self._epoch_counts(stages, default_all)
+        if not any(out.values()):
+            raise ValueError(
+                f"--epochs {self.epochs!r}: 0 epochs for every stage ({', '.join(stages)}) would write an "
+                "untrained checkpoint; give N ≥ 1"
+            )
+        return out
+
+    def _epoch_counts(
+        self, stages: tuple[str, ...], default_all: tuple[str, ...] | None = None
+    ) -> dict[str, int]:
         out = dict.fromkeys(stages, 0)
         try:
             if "=" not in self.epochs:
@@ -135,6 +149,19 @@ class TrainOptions(BaseModel):
                 raise
             raise ValueError(f"--epochs {self.epochs!r}: expected N or stage=N,... with N ≥ 0") from None
         return out
+
+    def start_from(self, method: Method, scans: int = 1) -> Path | None:
+        """``init_from``, with ``bundled`` resolved to ``method``'s bundled checkpoint for k = ``scans``.
+
+        Raises:
+            ValueError: ``bundled`` asked for and the package holds no such model.
+        """
+        if self.init_from is None or str(self.init_from) != "bundled":
+            return self.init_from
+        found = method.bundled_checkpoint(scans)
+        if found is None:
+            raise ValueError(f"--init-from bundled: no bundled {method.name} model for k = {scans}")
+        return found
 
     def names(self, text: str | None) -> list[str] | None:
         """A comma-separated option as a list (None when not given)."""

@@ -98,6 +98,7 @@ class Dpls(Method):
 
         from dsnet_core.checkpoints import bundled_checkpoint
         from dsnet_core.train.dpls import DplsTrainConfig, DplsTrainer
+        from tasks.methods import get_method
         from tasks.methods.training import open_training_data
 
         assert isinstance(options, DplsTrainOptions)
@@ -108,7 +109,7 @@ class Dpls(Method):
             epochs=epochs, lr=options.lr, scans=options.scans, seed=options.seed, augment=options.augment,
             device=options.device,
         )  # fmt: skip
-        start = options.init_from or bundled_checkpoint(1)
+        start = options.start_from(get_method(), 1) or bundled_checkpoint(1)
         trainer = DplsTrainer(
             options.out, data.reader, data.sequences, data.val_reader, data.val_sequences, data.label_map,
             cfg, start, options.resume,

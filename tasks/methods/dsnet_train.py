@@ -105,6 +105,11 @@ def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None)
     if options.stream and (options.val_data is None or options.holdout):
         raise ConfigError("--stream needs --val-data VAL (the stream has no fixed frames to hold out)")
     epochs = options.epoch_counts(TRAIN_STAGES, PLAIN_STAGES)
+    if options.stage != "all" and not epochs[options.stage]:
+        raise ConfigError(
+            f"--stage {options.stage} with --epochs {options.epochs!r} trains 0 epochs: name it (e.g. "
+            f"--epochs {options.stage}=2)"
+        )
     config = model_config(options)
     torch.set_num_threads(options.threads)
     stream = stream_reader(options) if options.stream else None
@@ -129,12 +134,13 @@ def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None)
             patience=options.patience,
             amp=options.amp,
         )
-        lift = (
-            (options.equivariant, options.pooling) if options.init_from and options.equivariant != 1 else None
-        )
+        from tasks.methods import get_method
+
+        init_from = options.start_from(get_method(), options.scans)
+        lift = (options.equivariant, options.pooling) if init_from and options.equivariant != 1 else None
         trainer = Trainer(
             options.out, config, data.reader, data.sequences, data.val_reader, data.val_sequences,
-            data.label_map, cfg, options.resume, options.init_from, lift,
+            data.label_map, cfg, options.resume, init_from, lift,
         )  # fmt: skip
         card = trainer.run(on_step=on_step if trainer.dist.is_main else None)
     finally:

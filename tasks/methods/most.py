@@ -115,11 +115,17 @@ class Most(Method):
         from dsnet_core.model.presets import get_preset
         from dsnet_core.most.config import MostConfig
         from dsnet_core.train.most import MostTrainConfig, MostTrainer
+        from tasks.methods import get_method
         from tasks.methods.dsnet_train import parse_grid
         from tasks.methods.training import open_training_data
 
         assert isinstance(options, MostTrainOptions)
         epochs = options.epoch_counts(TRAIN_STAGES)
+        if options.stage != "all" and not epochs[options.stage]:
+            raise ValueError(
+                f"--stage {options.stage} with --epochs {options.epochs!r} trains 0 epochs: name it (e.g. "
+                f"--epochs {options.stage}=2)"
+            )
         backbone = get_preset(options.preset)
         if options.grid:
             backbone = replace(backbone, grid=replace(backbone.grid, size=parse_grid(options.grid)))
@@ -134,9 +140,10 @@ class Most(Method):
             augment=options.augment,
             device=options.device,
         )
+        start = options.start_from(get_method(), 1)
         trainer = MostTrainer(
             options.out, MostConfig(backbone=backbone), data.reader, data.sequences, data.val_reader,
-            data.val_sequences, data.label_map, cfg, options.resume, backbone_from=options.init_from,
+            data.val_sequences, data.label_map, cfg, options.resume, backbone_from=start,
         )  # fmt: skip
         card = trainer.run(on_step=on_step)
         last = card.metrics[-1] if card.metrics else {}

@@ -69,3 +69,22 @@ def test_bev_places_points_and_colours_instances():
     assert np.array_equal(img[10, 20], colours[0])  # 10 m forward -> up
     assert np.array_equal(img[30, 20], colours[1])  # 10 m behind -> down
     assert np.array_equal(img[20, 10], colours[2])  # 10 m left (+y) -> left
+
+
+def test_class_colours_follow_the_label_map_and_fill_the_gaps():
+    from dsnet_core.labels import class_map_of, label_map_from_class_map
+    from dsnet_core.viz.bev import DIM, class_colours, class_point_colours
+
+    lm = load_label_map("semantic-kitti")
+    colours = class_colours(lm)
+    assert colours.shape == (lm.num_classes, 3) and colours.dtype == np.uint8
+    for train, raw in lm.learning_map_inv.items():  # the YAML's BGR as RGB
+        assert colours[train].tolist() == list(lm.color_map[raw][::-1])
+    labels = np.array([10 | 3 << 16, 40, 30 | 7 << 16], dtype=np.uint32)  # car (instance 3), road, person
+    by_class = class_point_colours(labels, lm)  # instances do not change a class picture's colour
+    assert by_class.tolist() == [colours[1].tolist(), colours[9].tolist(), colours[6].tolist()]
+    assert label_colours(labels[1:2], lm)[0].tolist() == (colours[9] * DIM).astype(np.uint8).tolist()
+    bare = label_map_from_class_map({**class_map_of(lm), "name": "custom"})  # a map without colours
+    got = class_colours(bare)
+    assert got[0].tolist() == [128, 128, 128]
+    assert len({tuple(c) for c in got[1:].tolist()}) == lm.num_classes - 1  # distinct hues

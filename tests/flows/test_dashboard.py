@@ -93,14 +93,20 @@ def test_dashboard_in_headless_chromium(runs, tmp_path):
             ".map(e => [e.dataset.k, e.dataset.v, e.textContent])"
         )
         rects = browser.eval(
-            "Array.from(document.querySelectorAll('svg.chart, .bev img')).map(e => {"
+            "Array.from(document.querySelectorAll('#s-classes svg.chart, #s-frames svg.chart, "
+            "#s-timings svg.chart, #s-worst .bev img')).map(e => {"
             " const r = e.getBoundingClientRect();"
             " return [e.id || e.alt, r.left + scrollX, r.top + scrollY, r.width, r.height]; })"
+        )
+        legend = browser.eval(
+            "Array.from(document.querySelectorAll('#s-worst .legend .key[data-class]'))"
+            ".map(e => e.textContent)"
         )
         browser.eval("window.scrollTo(0, 0)")
         png = browser.screenshot()
         errors, requests = browser.errors(), browser.requests()
     (tmp_path / "dashboard.png").write_bytes(png)
+    assert "road" in legend and "vegetation" in legend and "car" not in legend  # stuff colours; things by id
     assert errors == []
     assert requests and all(u.startswith(("file:", "data:")) for u in requests), requests
     # the numbers shown are the tables' numbers
@@ -150,7 +156,7 @@ def test_dashboard_command(runs, tmp_path):
     res = subprocess.run(
         cli("dashboard", str(tmp_path), "--out", str(out)), cwd=REPO, env=env, capture_output=True, text=True
     )
-    assert res.returncode == 2 and "no score report here" in res.stderr
+    assert res.returncode == 2 and "no run config here (not a run store" in res.stderr
 
 
 def test_frame_axis_ticks_are_round_numbers():

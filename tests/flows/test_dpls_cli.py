@@ -31,8 +31,10 @@ def test_label_method_dpls_with_a_user_prior_then_export_and_eval(synth_log, tmp
     assert config["stages"]["prior"] == {"source": "user", "path": str(prior), "label_map": "semantic-kitti"}
     assert config["stages"]["shift"] == {"clusterer": {"kind": "dbscan"}}
     pipeline = RunConfig.of(config).pipeline()
-    assert pipeline.names() == ["ingest", "align", "prior", "dpls", "shift", "fuse", "stitch", "score"]
-    assert store.read_manifest("00", "stitch").status == "done"
+    assert pipeline.names() == [
+        *("ingest", "align", "prior", "dpls", "shift", "fuse", "stitch", "refine", "score")
+    ]  # refine by default
+    assert store.read_manifest("00", "refine").status == "done"
 
     runner = CliRunner()
     out = tmp_path / "export"
@@ -56,5 +58,7 @@ def test_prior_flags_belong_to_dpls_and_dsnet_flags_do_not(tmp_path):
         (["--method", "dpls", "--tta", "4"], "--tta: not a setting of method dpls"),
         (["--method", "dpls", "--prior-label-map", "x.yaml"], "--prior-label-map: names the label map"),
     ]:
-        res = runner.invoke(app, ["label", "x", "--run", str(tmp_path / "r"), *extra], env={"COLUMNS": "250"})
+        res = runner.invoke(
+            app, ["label", str(tmp_path), "--run", str(tmp_path / "r"), *extra], env={"COLUMNS": "250"}
+        )
         assert res.exit_code == 2 and message in res.output, res.output

@@ -27,8 +27,8 @@ def test_label_method_most_then_export_and_eval(synth_log, tmp_path, cli_env):
     config = store.read_run_config()
     assert config["method"] == "most" and config["stages"]["most"]["scans"] == 2
     pipeline = RunConfig.of(config).pipeline()
-    assert pipeline.names() == ["ingest", "align", "most", "track", "score"]
-    assert store.read_manifest("00", "track").status == "done"
+    assert pipeline.names() == ["ingest", "align", "most", "track", "refine", "score"]  # refine by default
+    assert store.read_manifest("00", "refine").status == "done" and pipeline.labels == "refine"
 
     runner = CliRunner()
     out = tmp_path / "export"
@@ -46,7 +46,7 @@ def test_label_method_most_then_export_and_eval(synth_log, tmp_path, cli_env):
 def test_label_method_most_refuses_dsnet_settings(tmp_path):
     res = CliRunner().invoke(
         app,
-        ["label", "x", "--run", str(tmp_path / "r"), "--method", "most", "--tta", "4"],
+        ["label", str(tmp_path), "--run", str(tmp_path / "r"), "--method", "most", "--tta", "4"],
         env={"COLUMNS": "250"},
     )
     assert res.exit_code == 2 and "--tta: not a setting of method most" in res.output

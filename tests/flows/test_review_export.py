@@ -18,7 +18,7 @@ from tasks.methods import get_pipeline
 from tasks.runner import run_stage_plain
 from tests.model_helpers import make_checkpoint
 
-P = get_pipeline()
+P = get_pipeline(refine=False)
 STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")  # no score stage: no ground truth used
 
 
@@ -28,6 +28,7 @@ def run(synth_log, tmp_path_factory):
     ckpt = make_checkpoint(tmp / "ckpt", seed=0)
     store = RunStore(tmp / "run")
     cfg = {
+        **P.record(),
         "data": str(synth_log),
         "stages": {
             "align": {"scans": 2},

@@ -21,7 +21,7 @@ from tasks.methods import get_pipeline
 from tests.helpers.label_request import req
 from tests.model_helpers import make_checkpoint
 
-P = get_pipeline()  # the DS-Net stages
+P = get_pipeline(refine=False)  # the DS-Net stages
 ALL = ("ingest", "align", "infer", "shift", "fuse", "stitch", "score")
 FAST_SHIFT = {"kind": "dynamic_shift", "n_seeds": 300, "bandwidths": [0.2, 1.8, 3.4]}
 SEQ = "00"
@@ -29,7 +29,7 @@ SEQ = "00"
 
 def _request(log, root, ckpt, from_stage=None):
     stages = {"align": {"scans": 1}, "infer": {"checkpoint": str(ckpt)}, "shift": {"clusterer": FAST_SHIFT}}
-    stitched = {"temporal": "stitch"}  # the stitch stage's files are what these tests damage
+    stitched = {"temporal": "stitch", "refine": False}  # the stitch stage's files are what these tests damage
     return req(
         str(log), str(root), [SEQ], stages, {"block_size": 3}, from_stage=from_stage, method_options=stitched
     )

@@ -42,12 +42,12 @@ def dpls_run(synth_log, tmp_path_factory):
         },
         "options": {"block_size": 2},
     }
-    return store, run, run_all_stages(store, get_pipeline("dpls"), run), tmp
+    return store, run, run_all_stages(store, get_pipeline("dpls", refine=False), run), tmp
 
 
 def test_dpls_carries_the_prior_to_the_final_labels(dpls_run):
     store, _run, m, _tmp = dpls_run
-    p = get_pipeline("dpls")
+    p = get_pipeline("dpls", refine=False)
     assert p.names() == ["ingest", "align", "prior", "dpls", "shift", "fuse", "stitch", "score"]
     assert all(m[s].status == "done" for s in p.names())
     align = store.arrays("00", p["align"].contract)
@@ -63,6 +63,8 @@ def test_dpls_carries_the_prior_to_the_final_labels(dpls_run):
         assert np.array_equal(out["probs"], pri["prior"]) and out["probs"].shape[1] == LM.num_classes
         assert np.array_equal(pri["prior"].argmax(1), gt) and set(np.unique(pri["prior"])) <= {0, 255}
         assert out["offsets"].dtype == np.float32 and out["features"].shape[1] == 32
+        stuff = ~thing[gt]  # shift reads offsets and features on thing points only
+        assert not out["offsets"][stuff].any() and not out["features"][stuff].any()
         fused = fuse.read_item(v)
         stuff = ~thing[gt]
         assert np.array_equal(fused["sem"][stuff], gt[stuff]) and not fused["inst"][stuff].any()
@@ -73,7 +75,7 @@ def test_dpls_carries_the_prior_to_the_final_labels(dpls_run):
 
 def test_switching_the_prior_source_recomputes_only_prior_and_downstream(dpls_run):
     store, run, _m, tmp = dpls_run
-    p = get_pipeline("dpls")
+    p = get_pipeline("dpls", refine=False)
     model = make_checkpoint(tmp / "semantic-ckpt")
     other = {**run, "stages": {**run["stages"], "prior": {"source": "model", "checkpoint": str(model)}}}
     for stage in ("ingest", "align"):
@@ -89,7 +91,7 @@ def test_switching_the_prior_source_recomputes_only_prior_and_downstream(dpls_ru
 
 def test_a_prior_whose_count_or_classes_do_not_match_is_refused(dpls_run, synth_log, tmp_path):
     _store, run, _m, _tmp = dpls_run
-    p = get_pipeline("dpls")
+    p = get_pipeline("dpls", refine=False)
     prior = write_gt_prior(synth_log, tmp_path / "short", layout="flat")
     f = prior / "00" / "000002.label"
     f.write_bytes(f.read_bytes()[:-8])

@@ -36,14 +36,14 @@ def most_run(synth_log, tmp_path_factory):
         "stages": {"align": {"scans": 1}, "most": {"checkpoint": str(ckpt), "scans": 2}},
         "options": {"block_size": 4},
     }
-    return store, run, run_all_stages(store, get_pipeline("most"), run)
+    return store, run, run_all_stages(store, get_pipeline("most", refine=False), run)
 
 
 def test_most_labels_every_frame_and_its_tables_agree_with_its_arrays(most_run, synth_log):
     from dsnet_core.io.semantickitti import SemanticKittiReader
 
     store, _run, m = most_run
-    p = get_pipeline("most")
+    p = get_pipeline("most", refine=False)
     assert [s.name for s in p] == ["ingest", "align", "most", "track", "score"]
     assert m["most"].status == m["track"].status == m["score"].status == "done"
     reader = SemanticKittiReader(synth_log)
@@ -70,7 +70,7 @@ def test_most_labels_every_frame_and_its_tables_agree_with_its_arrays(most_run, 
 
 def test_switching_method_keeps_ingest_and_align(most_run):
     store, run, _m = most_run
-    dsnet = get_pipeline("dsnet", temporal="track")
+    dsnet = get_pipeline("dsnet", temporal="track", refine=False)
     other = {**run, "method": "dsnet", "stages": {"align": {"scans": 1}}}
     for stage in ("ingest", "align"):
         assert prepare_stage(store, dsnet, "00", stage, other, "r2").action == "skip"
@@ -78,7 +78,7 @@ def test_switching_method_keeps_ingest_and_align(most_run):
 
 def test_most_refuses_a_dsnet_checkpoint_and_multi_scan_volumes(most_run, tmp_path):
     store, run, _ = most_run
-    p = get_pipeline("most")
+    p = get_pipeline("most", refine=False)
     dsnet_ckpt = make_checkpoint(tmp_path / "ds")
     bad = {**run, "stages": {"align": {"scans": 1}, "most": {"checkpoint": str(dsnet_ckpt)}}}
     with pytest.raises(CheckpointError, match="DS-Net checkpoint: label with --method dsnet"):
@@ -106,7 +106,7 @@ def test_settings_that_are_not_most_s_are_refused():
         with pytest.raises(ValueError, match=f"{flag}: not a setting of method most"):
             stage_configs("most", scans=3, **kw)
     req = LabelRequest(data="d", root="r", method="most", method_options={"temporal": "auto"}, stages=stages)
-    assert req.pipeline().labels == "track"
+    assert req.pipeline().labels == "refine" and "track" in req.pipeline()  # tracked, then refined
     with pytest.raises(ValueError, match="tracking only"):
         LabelRequest(data="d", root="r", method="most", method_options={"temporal": "stitch"}).pipeline()
 

@@ -86,12 +86,3 @@ def test_shift_loss_is_summed_mean_l1():
 def test_unknown_kernel_is_rejected():
     with pytest.raises(ValueError, match="unknown shifting kernel 'sparse'"):
         DynamicShift(kernel="sparse")
-
-
-@pytest.mark.gpu
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-def test_dense_kernel_on_cuda_matches_cpu_neighbours():
-    x = _seeds(4, m=3000)
-    cpu = flat_kernel_targets_neighbors(x, BANDWIDTHS_3D)
-    gpu = flat_kernel_targets_dense(x.to("cuda"), BANDWIDTHS_3D)
-    torch.testing.assert_close(gpu.cpu(), cpu, atol=1e-5, rtol=0)

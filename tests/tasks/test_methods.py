@@ -1,0 +1,46 @@
+"""The method objects: what each takes from the command line, what it records, its pipeline."""
+
+from __future__ import annotations
+
+import pytest
+from pydantic import ValidationError
+
+from tasks.methods import METHODS, LabelSettings, get_method, stage_configs
+from tasks.methods.dsnet_train import DsnetTrainOptions
+
+
+def test_every_method_builds_a_refined_pipeline_by_default_and_a_plain_one_on_request():
+    for name, method in METHODS.items():
+        refined = method.pipeline()
+        assert refined.labels == "refine" and refined.names()[-2:] == ["refine", "score"], name
+        assert ("refine", True) in refined.options
+        plain = method.pipeline({"refine": False})
+        assert "refine" not in plain and plain["score"].upstream[0] == plain.labels, name
+        with pytest.raises(ValueError, match=f"method {name} takes no option bogus"):
+            method.pipeline({"bogus": 1})
+
+
+def test_settings_are_validated_once_and_refused_by_flag():
+    with pytest.raises(ValidationError, match="scans"):
+        LabelSettings(scans=0)
+    with pytest.raises(ValidationError, match="expected cpu, cuda or cuda:N"):
+        LabelSettings(device="gpu")
+    assert stage_configs(scans=1, device="cuda:1")["infer"] == {"device": "cuda:1"}
+    with pytest.raises(ValueError, match="--semantic-prior: not a setting of method dsnet"):
+        stage_configs(semantic_prior="p")
+    assert get_method().options(LabelSettings(refine=False, temporal="track")) == {
+        "temporal": "track",
+        "refine": False,
+    }
+    assert get_method("most").options(LabelSettings()) == {}
+
+
+def test_init_from_bundled_is_the_methods_bundled_model():
+    dsnet = get_method()
+    opts = DsnetTrainOptions(out="x", init_from="bundled")
+    assert opts.start_from(dsnet, 1) == dsnet.bundled_checkpoint(1) is not None
+    assert opts.start_from(dsnet, 2) == dsnet.bundled_checkpoint(2)
+    assert DsnetTrainOptions(out="x").start_from(dsnet) is None
+    for bad, said in (({"batch_size": 0}, "batch_size"), ({"lr": -1}, "lr"), ({"threads": 0}, "threads")):
+        with pytest.raises(ValidationError, match=said):
+            DsnetTrainOptions(out="x", **bad)

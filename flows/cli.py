@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import typer
 
+from flows.commands.adapt import adapt_command
 from flows.commands.dashboard import dashboard
 from flows.commands.demo import demo
 from flows.commands.describe import describe
@@ -33,6 +34,7 @@ app.command()(label)
 app.command()(status)
 register_methods()
 app.add_typer(train, name="train")
+app.command(name="adapt")(adapt_command())
 app.command()(export)
 app.command()(dashboard)
 app.command()(serve)

@@ -8,12 +8,14 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from dsnet_core.errors import ConfigError, SequenceLayoutError
 from dsnet_core.io.semantickitti import write_frame, write_sequence_meta
 from dsnet_core.synth.config import SynthConfig
+from dsnet_core.synth.physics import apply_physics
 from dsnet_core.synth.render import Renderer
 from dsnet_core.synth.scene import Scene, build_scene
 from dsnet_core.synth.sensor import get_sensor
@@ -167,6 +169,7 @@ def generate_log(
     style: str = "classic",
     styles: list[str] | tuple[str, ...] | None = None,
     sensors: list[str] | tuple[str, ...] | None = None,
+    physics: dict[str, Any] | None = None,
 ) -> list[str]:
     """Generate ``sequences`` synthetic sequences of ``frames`` sweeps under ``out_root/sequences/``.
 
@@ -188,6 +191,9 @@ def generate_log(
             ``classic`` with ``hdl64``/``vlp32`` also draws the sensor's mounting, noise and the
             remission per sequence; each sequence's choices are written to ``synth.json`` beside it.
         styles, sensors: what ``random`` draws from (default: all).
+        physics: deliberately altered sensor physics (:func:`~dsnet_core.synth.physics.parse_physics`
+            keys: beam pattern, mounting height, remission model, ray drop), applied after each
+            sequence's own draws and recorded in its ``synth.json``.
 
     Returns:
         The sequence names written.
@@ -217,6 +223,7 @@ def generate_log(
         index = int(name)
         seq_dir = Path(out_root) / "sequences" / name
         setup = choose_setup(child_seed(sequence_seed(seed, index), 2), style, sensor, styles, sensors)
+        setup = replace(setup, spec=apply_physics(setup.spec, physics))
         plan = plan_sequence(seed, index, frames, config, setup)
         renderer = Renderer(plan.scene, setup.spec, plan.poses[:, :2, 3])
         frame_seeds = sequence_seed(seed, index).spawn(2)[1].spawn(frames)
@@ -229,7 +236,12 @@ def generate_log(
                 on_frame(name, i)
         relative = np.linalg.inv(plan.poses[0])[None] @ plan.poses
         write_sequence_meta(seq_dir, relative, tr, plan.times)
-        record = {"sequence": name, "seed": int(seed), **setup.record()}
+        record = {
+            "sequence": name,
+            "seed": int(seed),
+            **setup.record(),
+            **({"physics": physics} if physics else {}),
+        }
         (seq_dir / SETUP_FILE).write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
         log.info("wrote %s (%d frames, %s street, %s)", seq_dir, frames, setup.style, setup.sensor)
     return names

@@ -27,12 +27,22 @@ def synth(
         "(drawn per sequence). Anything but classic with hdl64/vlp32 also draws the sensor's mounting, "
         "noise and remission per sequence; each sequence's choices go to synth.json in its folder.",
     ),
+    physics: list[str] = typer.Option(
+        None,
+        help="Altered sensor physics KEY=VALUE, repeatable: elevations=uniform:B:TOP:BOTTOM (or a list of "
+        "degrees), azimuth_steps, height, remission_gain, falloff, dropout, far_dropout, range_noise, "
+        "min_range, max_range (a LiDAR no preset has; recorded in synth.json).",
+    ),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
+    from dsnet_core.synth.physics import parse_physics
+
     with errors_exit():
         check_output(out, "OUT", "folder")
-        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style)
+        altered = parse_physics(physics)
+        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style, altered)
     what = sensor if style == "classic" else f"{style} street, {sensor}"
+    what += ", altered physics" if physics else ""
     typer.echo(f"wrote {sequences} sequence(s) × {frames} frames ({what}) to {out.resolve() / 'sequences'}")
 
 
@@ -45,6 +55,7 @@ def generate(
     first_sequence: int = 0,
     overwrite: bool = False,
     style: str = "classic",
+    physics: dict | None = None,
 ) -> list[str]:
     """Write a synthetic log with a progress bar; returns the sequence names.
 
@@ -66,5 +77,6 @@ def generate(
             first_sequence=first_sequence,
             overwrite=overwrite,
             style=style,
+            physics=physics,
             on_frame=lambda _seq, _i: progress.advance(task),
         )

@@ -182,6 +182,8 @@ class Method(ABC):
         settings: the :class:`LabelSettings` it takes besides :data:`SHARED_SETTINGS`.
         TrainOptions: its trainer's options (a :class:`TrainOptions` subclass).
         data_parallel: whether its trainer runs under torchrun with several processes.
+        adaptable: whether ``dsnet adapt`` can self-train its network on unlabelled logs (a network
+            with a semantic head and probabilities its infer stage stores; ``docs/adapt.md``).
     """
 
     name: ClassVar[str]
@@ -190,6 +192,7 @@ class Method(ABC):
     settings: ClassVar[frozenset[str]] = frozenset()
     TrainOptions: ClassVar[type[TrainOptions]] = TrainOptions
     data_parallel: ClassVar[bool] = False
+    adaptable: ClassVar[bool] = False
 
     # -- labelling -----------------------------------------------------------------------------
     @abstractmethod

@@ -35,6 +35,7 @@ class Dsnet(Method):
     settings = frozenset({"stride", "clusterer", "tta", "tta_flip", "equivariant", "temporal"})
     TrainOptions = DsnetTrainOptions
     data_parallel = True
+    adaptable = True
 
     def pipeline(
         self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None

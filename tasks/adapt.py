@@ -1,0 +1,216 @@
+"""``dsnet adapt``: self-train a method's network on unlabelled target logs (``docs/adapt.md``).
+
+:class:`AdaptOptions` (each field a command-line option) → the target logs, the corrected frames,
+the source scans and the teacher (:class:`~tasks.adapt_teacher.TeacherLabeller`) →
+:class:`~dsnet_core.adapt.trainer.AdaptTrainer`. Everything the run writes lives under ``--out``:
+the checkpoint (the EMA teacher), ``store/`` (one run store per target log), ``rounds/R/`` (each
+round's teacher snapshot and pseudo-labels).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+from dataclasses import asdict
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from tasks.methods import DEFAULT_METHOD, LabelSettings, get_method
+from tasks.methods.base import StepCallback, check_device
+
+log = logging.getLogger(__name__)
+
+
+class AdaptOptions(BaseModel):
+    """Self-training on unlabelled target logs: teacher labels (with refine) → class-balanced
+    pseudo-labels → a student trained on them mixed with source scans → an EMA teacher that relabels
+    between rounds. ``--out`` is the adapted checkpoint (resumable; every epoch committed)."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    logs: list[Path] = Field(..., description="Unlabelled target logs (any format).")
+    out: Path = Field(..., description="The adapted checkpoint (folder; also holds the run stores).")
+    init_from: Path | None = Field(
+        None, alias="from", description="Checkpoint to adapt (default: the bundled model for --scans)."
+    )
+    labels: Path | None = Field(
+        None,
+        description="Corrected frames: a `dsnet review export` folder, or DIR/sequences/SS/labels/ID.label.",
+    )
+    rounds: int = Field(2, ge=1, description="Label → select → train rounds.")
+    steps: int = Field(200, ge=1, description="Student steps per round (one mixed scan each).")
+    epochs: int = Field(2, ge=1, description="Epochs per round (a checkpoint each).")
+    scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume.")
+    method: str = Field(DEFAULT_METHOD, description="The labelling method whose network adapts.")
+    lr: float = Field(1e-3, gt=0, description="Adam learning rate (constant).")
+    ema: float = Field(0.99, ge=0, lt=1, description="The teacher's EMA decay per student step.")
+    keep: float = Field(0.5, gt=0, le=1, description="Each class's most confident share kept.")
+    min_confidence: float = Field(0.3, ge=0, le=1, description="No class threshold below this.")
+    max_confidence: float = Field(0.9, ge=0, le=1, description="No class threshold above this.")
+    mix: Literal["both", "laser", "polar", "none"] = Field("both", description="Target/source mixing.")
+    label_weight: float = Field(2.0, gt=0, description="Loss weight of corrected frames.")
+    holdout: float = Field(0.3, ge=0, lt=1, description="Share of corrected frames held back to validate.")
+    patience: int = Field(2, ge=0, description="Held-out early stop (needs ≥ 3 held-back frames).")
+    source_log: Path | None = Field(None, description="Labelled source log (default: the synthetic stream).")
+    source_styles: str | None = Field(None, description="Stream styles (default: the parent's).")
+    source_sensors: str | None = Field(None, description="Stream sensors (default: the parent's).")
+    stream_workers: int = Field(1, ge=0, description="Background render processes of the stream.")
+    clusterer: str | None = Field(None, description="The teacher's clusterer (see dsnet label).")
+    estimate_poses: bool = Field(False, description="Logs without poses: the teacher estimates them.")
+    device: str = Field("cpu", description="cpu, cuda or cuda:N.")
+    seed: int = Field(0, ge=0, description="Seed of order, augmentation, mixing and source samples.")
+    threads: int = Field(1, ge=1, description="Torch CPU threads.")
+    augment: bool = Field(True, description="Yaw/flip/scale/translation augmentation.")
+    resume: bool = Field(False, description="Continue the checkpoint in --out.")
+
+    @field_validator("device")
+    @classmethod
+    def valid_device(cls, value: str) -> str:
+        return check_device(value) or "cpu"
+
+    def names(self, text: str | None) -> tuple[str, ...] | None:
+        return tuple(v.strip() for v in text.split(",") if v.strip()) if text else None
+
+
+def log_fingerprint(reader) -> str:
+    """sha256 of a log's frames (sequence, frame id) and its scan files (names, sizes, first 64 KiB)."""
+    h = hashlib.sha256()
+    files = set()
+    for seq in reader.sequences():
+        for ref in reader.frames(seq):
+            h.update(f"{seq}/{ref.frame_id};".encode())
+            files.add(Path(ref.scan_path))
+    for p in sorted(files):
+        h.update(p.name.encode())
+        if p.is_file():
+            h.update(str(p.stat().st_size).encode())
+            with open(p, "rb") as f:
+                h.update(f.read(1 << 16))
+    return h.hexdigest()
+
+
+def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_label=None) -> str:
+    """Adapt (or resume); returns the summary line.
+
+    Raises:
+        DsnetError, ValueError: bad logs, checkpoints or settings, each naming what is wrong.
+    """
+    import torch
+
+    from dsnet_core.adapt import AdaptConfig, SelectionParams
+    from dsnet_core.adapt.trainer import AdaptTrainer
+    from dsnet_core.io.formats import open_log
+    from dsnet_core.labels import label_map_from_class_map
+    from dsnet_core.model.card import read_card
+    from tasks.adapt_sources import corrected_frames, source_scans
+    from tasks.adapt_teacher import TeacherLabeller
+
+    method = get_method(options.method)
+    if not method.adaptable:
+        raise ValueError(
+            f"method {method.name} cannot be adapted (its network has no semantic head to self-train)"
+        )
+    torch.set_num_threads(options.threads)
+    parent = _parent(options, method)
+    card = read_card(parent)
+    label_map = label_map_from_class_map(card.class_map)
+    logs = [open_log(str(p)) for p in options.logs]
+    if len({str(r.root) for r in logs}) < len(logs):
+        raise ValueError("a target log is given twice")
+    cfg = AdaptConfig(
+        rounds=options.rounds,
+        steps=options.steps,
+        epochs=options.epochs,
+        lr=options.lr,
+        ema=options.ema,
+        mix=options.mix,
+        label_weight=options.label_weight,
+        scans=options.scans,
+        seed=options.seed,
+        augment=options.augment,
+        device=options.device,
+        patience=options.patience,
+    )
+    params = SelectionParams(
+        keep=options.keep, min_confidence=options.min_confidence, max_confidence=options.max_confidence
+    )
+    train, heldout, exclude = corrected_frames(options, logs, cfg)
+    source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
+    settings = LabelSettings(
+        scans=options.scans,
+        device=options.device,
+        clusterer=options.clusterer,
+        estimate_poses=options.estimate_poses,
+    )
+    labeller = TeacherLabeller(options.out, logs, method, settings, params, label_map, exclude, on_label)
+    record = {
+        "method": method.name,
+        "logs": [
+            {
+                "root": str(r.root),
+                "format": r.format,
+                "sequences": r.sequences(),
+                "frames": sum(len(r.frames(s)) for s in r.sequences()),
+                "fingerprint": log_fingerprint(r),
+            }
+            for r in logs
+        ],
+        "selection": asdict(params),
+        "corrected": {
+            "path": str(options.labels) if options.labels else None,
+            "train": len(train),
+            "held_back": len(heldout),
+        },
+    }
+    try:
+        trainer = AdaptTrainer(
+            options.out,
+            parent,
+            cfg,
+            labeller,
+            source,
+            train,
+            heldout,
+            probe,
+            label_map,
+            record,
+            options.resume,
+        )
+        done = trainer.run(on_step=on_step)
+    finally:
+        source.close()
+    last = done.training_data["adapt"]["rounds"][-1] if done.training_data["adapt"]["rounds"] else {}
+    src = done.metrics[-1].get("val_source_miou", float("nan")) if done.metrics else float("nan")
+    return (
+        f"wrote adapted checkpoint {options.out.resolve()} (rounds {len(done.epochs)}, last round's "
+        f"pseudo-label coverage {last.get('coverage', float('nan')):.3f}, source probe mIoU {src:.4f})"
+    )
+
+
+def _parent(options: AdaptOptions, method) -> Path:
+    """The checkpoint to adapt: ``--from``, else the method's bundled one; on a resume, the one the
+    card records (a different ``--from`` is refused).
+
+    Raises:
+        CheckpointError, ValueError: none found, or a resume from another parent.
+    """
+    from dsnet_core.errors import CheckpointError
+    from dsnet_core.model.card import CARD, read_card
+
+    given = options.init_from.expanduser().resolve() if options.init_from else None
+    if options.resume and (options.out / CARD).is_file():
+        recorded = Path(
+            read_card(options.out).training_data.get("adapt", {}).get("parent", {}).get("path", "")
+        )
+        if given is not None and given != recorded:
+            raise ValueError(f"{options.out} adapts {recorded}: resume without --from, or with the same one")
+        given = recorded
+    if given is None:
+        given = method.bundled_checkpoint(options.scans)
+        if given is None:
+            raise CheckpointError(options.out, "no bundled model for this method: pass --from CKPT")
+    read_card(given)
+    return given

@@ -226,6 +226,8 @@ def generate_log(
         relative = np.linalg.inv(plan.poses[0])[None] @ plan.poses
         write_sequence_meta(seq_dir, relative, tr, plan.times)
         record = {"sequence": name, "seed": int(seed), **setup.record()}
+        if config.variety != "base" and setup.style != "classic":
+            record["variety"] = config.variety
         (seq_dir / SETUP_FILE).write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
         log.info("wrote %s (%d frames, %s street, %s)", seq_dir, frames, setup.style, setup.sensor)
     return names

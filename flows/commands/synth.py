@@ -27,11 +27,18 @@ def synth(
         "(drawn per sequence). Anything but classic with hdl64/vlp32 also draws the sensor's mounting, "
         "noise and remission per sequence; each sequence's choices go to sequences/SS/synth.json.",
     ),
+    variety: str = typer.Option(
+        "base",
+        help="How widely the street styles vary: base, or wide (textured and low buildings, fences of "
+        "any height and porosity, bark, people by trees and on grass, rough grass, patchy remission, "
+        "flush kerbs, vans as cars; docs/synth_giveaways.md). The classic street ignores it.",
+    ),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
     with errors_exit():
-        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style)
+        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style, variety)
     what = sensor if style == "classic" else f"{style} street, {sensor}"
+    what += "" if variety == "base" or style == "classic" else f", {variety} variety"
     typer.echo(f"wrote {sequences} sequence(s) × {frames} frames ({what}) to {out.resolve() / 'sequences'}")
 
 
@@ -44,6 +51,7 @@ def generate(
     first_sequence: int = 0,
     overwrite: bool = False,
     style: str = "classic",
+    variety: str = "base",
 ) -> list[str]:
     """Write a synthetic log with a progress bar; returns the sequence names.
 
@@ -52,7 +60,9 @@ def generate(
     """
     from rich.progress import Progress
 
-    from dsnet_core.synth import generate_log
+    from dsnet_core.synth import SynthConfig, generate_log
+
+    config = SynthConfig(variety=variety)  # an unknown variety is a ConfigError (one line)
 
     with Progress(transient=True) as progress:
         task = progress.add_task("ray-casting sweeps", total=sequences * frames)
@@ -65,5 +75,6 @@ def generate(
             first_sequence=first_sequence,
             overwrite=overwrite,
             style=style,
+            config=config,
             on_frame=lambda _seq, _i: progress.advance(task),
         )

@@ -253,7 +253,7 @@ class StreetStyle:
         self.populate(ctx)
         surface = None
         if wide is not None:
-            populate_wide(wide, ctx)
+            populate_wide(wide, ctx, StylePlacer(wide.rng, road, street, occ, wide))
             surface = Surface.draw(wide.rng, xy.min(axis=0) - reach - 5.0, xy.max(axis=0) + reach + 5.0)
         static = lift(PrimitiveSet.concat([traffic.static(), *ctx.stuff]), ground)
         actors = traffic.actors()

@@ -289,9 +289,22 @@ def jagged_edges(rng: np.random.Generator, painting, kerb: float) -> None:
         painting.raised[off_road] = False
 
 
-def populate(wide: Wide, ctx: Ctx) -> None:
-    """People standing by trees (a share :attr:`Wide.by_trees` of them) and on grass."""
+def populate(wide: Wide, ctx: Ctx, placer) -> None:
+    """Street trees planted in the paved sidewalk (``placer``: a wide :class:`~.base.StylePlacer`),
+    then people standing by trees (a share :attr:`Wide.by_trees` of them) and on grass."""
     rng, traffic = wide.rng, ctx.traffic
+    if rng.random() < 0.5:
+        for side, sign in enumerate(SIDES):
+            e = ctx.street.layout.edges[side, :, 0]
+            if e[3] - e[2] < 2.0:
+                continue
+            s = ctx.s_lo + rng.uniform(0.0, 12.0)
+            while s < ctx.s_hi:
+                d = sign * (e[2] + rng.uniform(0.5, 1.0))
+                if ctx.ground_class(s, d) == SIDEWALK:
+                    placer.tree(s, d)
+                s += rng.uniform(8.0, 25.0)
+        ctx.stuff.append(placer.out.build())
     for s, d, r in wide.trees:
         if rng.random() < wide.by_trees:
             a = rng.uniform(0, 2 * np.pi)

@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 CONSTRAINTS := constraints/lock.txt
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml Makefile $(CONSTRAINTS) | cksum | cut -d' ' -f1)
 
-.PHONY: demo test test-slow test-gpu bench lint format clean chromium gpu-wheels gpu-check gpu-train
+.PHONY: demo test test-slow test-gpu bench lint format clean chromium postgresql gpu-wheels gpu-check gpu-train
 
 $(STAMP): pyproject.toml Makefile $(CONSTRAINTS)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -33,7 +33,12 @@ test: $(STAMP) chromium
 	$(PY) -m ruff check .
 	$(PY) -m pytest -q -m "not slow and not gpu"
 
-test-slow: $(STAMP)
+# the production recipe's slow test makes its own PostgreSQL cluster (Debian's package; initdb, pg_ctl);
+# only the slow tests need it, and that test says why it is skipped where it is missing
+postgresql:
+	ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q postgresql; }
+
+test-slow: $(STAMP) postgresql
 	$(PY) -m pytest -q -m "slow"
 
 # the CUDA paths against the CPU ones; needs a CUDA build of torch and a GPU (skipped otherwise)

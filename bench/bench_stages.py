@@ -1,7 +1,8 @@
 """Time per stage of the label pipeline on 64-beam (hdl64) synthetic frames, one torch thread.
 
 Runs ingest → align → infer → shift → fuse → track (k = 1) or stitch (k > 1), the temporal
-stage ``dsnet label`` picks by default (``--temporal`` forces one), through the plain runner
+stage ``dsnet label`` picks by default (``--temporal`` forces one), then ``refine`` where the
+tree's pipeline has it (on by default since refine was added), through the plain runner
 (no Prefect) for each k, and prints seconds per frame for every stage (process CPU time, the
 steadier number on a shared machine, and wall time), the peak RSS, and the temporal stage's share
 of a frame's time (it should be a small fraction). Every stage's time includes its start (imports,
@@ -58,7 +59,8 @@ def label(log: Path, out: Path, ckpt: Path, k: int, temporal: str) -> dict:
     run = {"data": str(log), "stages": {"align": {"scans": k}, "infer": {"checkpoint": str(ckpt)}}}
     store.write_run_config("bench", run)
     res: dict = {"cpu": {}, "wall": {}}
-    for stage in (*STAGES, temporal):
+    res["stages"] = [s for s in pipeline.names() if s != "score"]
+    for stage in res["stages"]:
         t0, c0 = time.perf_counter(), time.process_time()
         m = run_stage_plain(store, pipeline, "00", stage, run, "bench")
         res["wall"][stage], res["cpu"][stage] = time.perf_counter() - t0, time.process_time() - c0
@@ -135,7 +137,6 @@ def main() -> None:
     try:
         for k in (int(s) for s in args.scans.split(",")):
             temporal = args.temporal if args.temporal != "auto" else ("track" if k == 1 else "stitch")
-            stages = (*STAGES, temporal)
             cpu = {}
             for name, root in trees.items():
                 cmd = [sys.executable, __file__, "--worker", str(root), str(log), str(warm), str(ckpt)]
@@ -143,10 +144,11 @@ def main() -> None:
                 if done.returncode:
                     sys.exit(f"{name} failed:\n{done.stderr[-3000:]}")
                 res = json.loads(done.stdout.strip().splitlines()[-1])
-                cpu[name] = _table(f"{name}, k = {k}", res, stages, temporal)
+                cpu[name] = _table(f"{name}, k = {k}", res, tuple(res["stages"]), temporal)
             if len(cpu) == 2:
                 now, then = cpu.values()
-                cells = "  ".join(f"{s} {now[s] / then[s]:.2f}x" for s in (*stages, "total"))
+                common = [s for s in now if s in then]
+                cells = "  ".join(f"{s} {now[s] / then[s]:.2f}x" for s in common)
                 print(f"\n  k = {k}, cpu now / baseline: {cells}")
     finally:
         if args.baseline:

@@ -24,6 +24,8 @@ BUNDLED_4D_NAME = "tiny-v2-4d"
 #: bundled MOST models: the accumulated-input one (k = 3) and, when present, a single-scan one
 BUNDLED_MOST_NAMES = {3: "most", 1: "most-1"}
 BUNDLED_DPLS_NAME = "dpls"
+#: bundled C_n-equivariant DS-Net models (Eq-4D), by n
+BUNDLED_EQUIVARIANT_NAMES = {4: "tiny-v2-eq4"}
 
 
 def bundled_dir(scans: int = 1) -> Path:
@@ -36,6 +38,13 @@ def bundled_dir(scans: int = 1) -> Path:
 
 def _is_checkpoint(path: Path) -> bool:
     return (path / "card.json").is_file() and (path / "model.safetensors").is_file()
+
+
+def bundled_equivariant_checkpoint(n: int) -> Path | None:
+    """The bundled C_n-equivariant DS-Net model (``dsnet label --equivariant n`` without
+    ``--checkpoint``), or None when none is bundled for ``n``."""
+    name = BUNDLED_EQUIVARIANT_NAMES.get(n)
+    return None if name is None or not _is_checkpoint(MODELS / name) else MODELS / name
 
 
 def bundled_checkpoint(scans: int = 1) -> Path | None:

@@ -68,6 +68,21 @@ class ConfigError(DsnetError):
     """A configuration file or value is invalid."""
 
 
+class OutputPathError(ConfigError):
+    """An output path names a file where a folder is written, a folder where a file is, or lies
+    under a file. ``path`` names it, ``problem`` says what is wrong."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class ServiceError(DsnetError):
+    """A service the run needs (the Prefect API, a Dask scheduler) does not answer, or is not that
+    service. The message names its address and what to check."""
+
+
 class MissingExtraError(DsnetError):
     """An optional dependency is not installed; the message names the ``pip install`` to run."""
 

@@ -39,11 +39,24 @@ class ExportSummary:
         out: the predictions root.
         frames: sequence -> number of label files written.
         missing: sequence -> frame ids without a final label (quarantined frames).
+        removed: sequence -> names of the ``.label`` files an earlier export left in the
+            sequence's folder for frames this one does not write (removed: a scorer would read them
+            as this run's).
     """
 
     out: Path
     frames: dict[str, int] = field(default_factory=dict)
     missing: dict[str, list[str]] = field(default_factory=dict)
+    removed: dict[str, list[str]] = field(default_factory=dict)
+
+    def sweep(self, seq: str, folder: Path, written: set[str]) -> None:
+        """Remove the ``.label`` files in ``folder`` that are not ``written`` by this export."""
+        stale = (
+            sorted(p.name for p in folder.glob("*.label") if p.name not in written) if folder.is_dir() else []
+        )
+        for name in stale:
+            (folder / name).unlink()
+        self.removed[seq] = stale
 
 
 def final_labels(
@@ -61,7 +74,17 @@ def final_labels(
             what was written (the store's cheap check before the first frame, then each frame's
             digests as it is read): never a label made of fill values.
     """
-    contract = labels_contract(read_run(store).labels())
+    run = read_run(store)
+    contract = labels_contract(run.labels())
+    if sequences is not None:
+        known = sorted(set(store.sequences()) | set(run.sequences))
+        unknown = [s for s in sequences if s not in known]
+        if unknown:
+            raise StoreError(
+                store.uri,
+                f"the run has no sequence {', '.join(map(repr, unknown))} "
+                f"(it has {', '.join(known) or 'none'})",
+            )
     found = False
     for seq in sorted(sequences if sequences is not None else store.sequences()):
         m = store.read_manifest(seq, contract.stage)
@@ -100,14 +123,19 @@ def export_semantickitti(
     store = RunStore(root, storage_options)
     out = Path(out)
     summary = ExportSummary(out=out)
+    written: dict[str, set[str]] = {}
     for seq, frame_id, label in final_labels(store, sequences):
         summary.frames.setdefault(seq, 0)
         summary.missing.setdefault(seq, [])
+        written.setdefault(seq, set())
         if label is None:
             summary.missing[seq].append(frame_id)
             continue
         write_label(out / "sequences" / seq / "predictions" / f"{frame_id}.label", label)
+        written[seq].add(f"{frame_id}.label")
         summary.frames[seq] += 1
+    for seq, names in written.items():
+        summary.sweep(seq, out / "sequences" / seq / "predictions", names)
     return summary
 
 
@@ -126,14 +154,19 @@ def export_frames(
     out = Path(out)
     summary = ExportSummary(out=out)
     source = _SourcePoints(store)
+    written: dict[str, set[str]] = {}
     for seq, frame_id, label in final_labels(store, sequences):
         summary.frames.setdefault(seq, 0)
         summary.missing.setdefault(seq, [])
+        written.setdefault(seq, set())
         if label is None:
             summary.missing[seq].append(frame_id)
             continue
         write_label(out / seq / f"{frame_id}.label", source.expand(seq, frame_id, label))
+        written[seq].add(f"{frame_id}.label")
         summary.frames[seq] += 1
+    for seq, names in written.items():
+        summary.sweep(seq, out / seq, names)
     return summary
 
 

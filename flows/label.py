@@ -23,16 +23,17 @@ from storage.run import RunStore
 from tasks.pipeline import Pipeline
 
 
-def label(request: LabelRequest) -> list[dict[str, Any]]:
+def label(request: LabelRequest, isolate: bool = False) -> list[dict[str, Any]]:
     """The body of both flows. Returns one summary row per (sequence, stage), plus one per failed
-    sequence."""
+    sequence. With ``isolate`` a sequence that fails leaves the run and the others go on (the
+    scheduled tick's policy: its bad files are tried again next time, not quarantined)."""
     pipeline = request.pipeline()
     reader = request.open_log()
     sequences = request.sequences if request.sequences is not None else reader.sequences()
     store = RunStore(request.root, request.storage_options)
     check_same_log(store, request)
     run_id = new_run_id()
-    state = RunState(run_id, request.order(pipeline), request.options, log=get_run_logger())
+    state = RunState(run_id, request.order(pipeline), request.options, log=get_run_logger(), isolate=isolate)
     forced = request.forced(pipeline)
     with stage_locks(store, pipeline, state.stages, sequences, run_id, request):
         run = record_run(store, run_id, request, pipeline, reader.format, sequences)  # lock winners only
@@ -100,6 +101,9 @@ def task_runner(workers: int | None = None, dask_address: str | None = None):
 
         logging.getLogger("distributed").setLevel(logging.WARNING)
         if dask_address:
+            from flows.services import check_dask_scheduler
+
+            check_dask_scheduler(dask_address)  # once more: the check may have run minutes ago
             return DaskTaskRunner(address=dask_address)
         return DaskTaskRunner(  # scheduler and dashboard on loopback: nothing listens on 0.0.0.0
             cluster_kwargs={

@@ -88,14 +88,26 @@ class LabelRequest(BaseModel):
 
     def check(self) -> None:
         """Check what can be checked before any server or stage starts: the method and the stage
-        names, the log (its format and reader options) and the model the stages name (its card).
+        names, the log (its format and reader options), the model the stages name (its card) and
+        the run store (a folder, or an S3 endpoint that answers to these credentials); each stage's
+        config against the stage's ``Config`` (``--clusterer bogus`` is refused here, naming the
+        option, not after three stages ran).
 
         Raises:
-            ValueError, DataFormatError, CheckpointError: naming what is wrong.
+            ValueError, DataFormatError, CheckpointError, StoreError: naming what is wrong.
         """
+        from pydantic import ValidationError
+
+        from storage.fs import RootFS
+
         pipeline = self.pipeline()
+        RootFS(self.root, self.storage_options).check()  # cheap: before the model card loads torch
         self.open_log()
-        self.stage_configs(pipeline, self.order(pipeline))
+        for name, config in self.stage_configs(pipeline, self.order(pipeline)).items():
+            try:
+                pipeline[name].Config.model_validate(config)
+            except ValidationError as exc:
+                raise ValueError(stage_config_line(name, exc)) from None
 
     def order(self, pipeline: Pipeline) -> list[str]:
         """The stages this run executes, in order."""
@@ -139,6 +151,33 @@ class LabelRequest(BaseModel):
     def dataset_name(self) -> str:
         """A short name of the log (its folder's name), for artifact keys."""
         return str(self.data).rstrip("/").rsplit("/", 1)[-1]
+
+
+def stage_config_line(stage: str, exc) -> str:
+    """A stage config's pydantic ValidationError as one line naming the command-line option of each
+    setting (``--clusterer 'bogus': not a kind (expected: 'dynamic_shift', ...)``); a setting no
+    option gives is named ``stage.setting``."""
+    from tasks.methods import LabelSettings
+    from tasks.methods.base import flag
+
+    parts = []
+    for err in exc.errors():
+        loc = [str(p) for p in err.get("loc", ())]
+        head = loc[0] if loc else ""
+        name = flag(head) if head in LabelSettings.model_fields else f"stage {stage} setting {head or '?'}"
+        ctx = err.get("ctx") or {}
+        if err.get("type") == "union_tag_invalid":
+            parts.append(
+                f"{name} {ctx.get('tag')!r}: not a kind it takes (expected: {ctx.get('expected_tags')})"
+            )
+        elif err.get("type") == "union_tag_not_found":
+            parts.append(f"{name}: a JSON config needs a {ctx.get('discriminator', 'kind')} field")
+        else:
+            inner = ".".join(loc[1:])
+            shown = err.get("input")
+            value = "" if isinstance(shown, dict | list) or shown is None else f" {shown!r}"
+            parts.append(f"{name}{': ' + inner if inner else ''}{value}: {err.get('msg', 'invalid')}")
+    return "; ".join(parts)
 
 
 def parse_reader_options(pairs: list[str] | None, **named: Any) -> dict[str, Any]:

@@ -10,6 +10,7 @@ daemon thread and prints one line when
 - a run is late (scheduled, its start time passed by more than ``grace_s``: no runner picks it
   up),
 - a run ends failed or crashed (its state message),
+- a run ends completed with a message (a tick that left sequences out: which, and why),
 
 and one line when scheduling recovers.
 """
@@ -22,6 +23,8 @@ from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 
 FAILED = ("FAILED", "CRASHED")
+STOCK = ("", "All states completed.")
+"""Completion messages that say nothing (Prefect's own)."""
 
 
 class ScheduleWatch:
@@ -104,6 +107,11 @@ class ScheduleWatch:
                     f"failed:{run.id}",
                     f"warning: scheduled run {run.name!r} of {self.deployment} ended {state.name.lower()}"
                     f": {message[-1] if message else 'no message'}",
+                )
+            elif state.type.value == "COMPLETED" and (state.message or "").strip() not in STOCK:
+                self._once(
+                    f"note:{run.id}",
+                    f"warning: scheduled run {run.name!r} of {self.deployment}: {state.message.strip()}",
                 )
             elif state.type.value == "SCHEDULED" and run.expected_start_time is not None:
                 late = now - run.expected_start_time

@@ -113,6 +113,9 @@ def prefect_api(startup_timeout: int = 90) -> Iterator[str]:
     quiet_prefect_env()
     existing = os.environ.get("PREFECT_API_URL")
     if existing:
+        from flows.services import check_prefect_api
+
+        check_prefect_api(existing)
         yield existing
         return
     from prefect.settings import PREFECT_API_URL, temporary_settings

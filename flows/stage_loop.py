@@ -3,7 +3,8 @@
 Per stage: decide skip / resume / fresh for every sequence (the manifest decides, not Prefect's
 cache), submit one task per (sequence, stage, block) to the task runner, wait for all of them,
 then finalise each sequence's stage. The error policy (``fail`` or ``skip``) is applied here: with
-``skip`` a sequence that fails leaves the run and the others go on.
+``skip`` (or a run that isolates its sequences, as a scheduled tick does) a sequence that fails
+leaves the run and the others go on.
 """
 
 from __future__ import annotations
@@ -77,6 +78,8 @@ class RunState:
         options: the error policy.
         summary: one row per (sequence, stage).
         failed: sequence -> "stage: error" of sequences that left the run.
+        isolate: a sequence that fails leaves the run and the others go on, whatever the error
+            policy (its frames are not quarantined: the next run tries it again).
     """
 
     run_id: str
@@ -86,6 +89,7 @@ class RunState:
     failed: dict[str, str] = field(default_factory=dict)
     progress_id: Any = None
     log: Any = None
+    isolate: bool = False
 
     def __post_init__(self) -> None:
         self.progress_id = create_progress_artifact(
@@ -126,7 +130,7 @@ def run_stage(
         so nothing writes after the locks are released).
     """
     t0 = time.perf_counter()
-    skip = state.options.on_error == "skip"
+    skip = state.options.on_error == "skip" or state.isolate
     decisions: dict[str, Decision] = {}
     for seq in sequences:
         if seq in state.failed:

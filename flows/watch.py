@@ -4,16 +4,24 @@ On each tick: find the sequences of the watched log that are new or stale (the m
 no finished ingest, changed source files, or a stage not done / done with another config or
 upstream), label them with every stage that exists, score where ground truth exists, refresh the
 report tables, the dashboard and the artifacts (:mod:`flows.publish`).
+
+A tick labels every healthy sequence: one whose files do not read (a scan still being written, a
+pose file cut short) is left out of that tick and reported with its reason, in the tick's
+artifact, its log and its final state's message (``dsnet serve`` prints it), and tried again by the
+next tick; nothing of it is quarantined. A tick whose watched log is gone ends failed with one line.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 from prefect import flow, get_run_logger
 from prefect.artifacts import create_markdown_artifact
+from prefect.states import Completed, Failed
 
+from dsnet_core.errors import DataFormatError
 from flows.label import label
 from flows.publish import dataset_key, publish
 from flows.request import LabelRequest
@@ -23,10 +31,28 @@ from tasks.run_config import RunConfig
 from tasks.runner import stage_fingerprint, stage_state
 
 
-def pending_sequences(request: LabelRequest) -> list[str]:
-    """Sequences of the request's log that its store lacks or holds stale (in the stages the request
-    runs: all, or up to ``until``). The manifests decide: no finished ingest, changed source files,
-    or a stage not done / done with another config or upstream."""
+@dataclass
+class Survey:
+    """What a tick finds in the watched log.
+
+    Attributes:
+        pending: sequences the store lacks or holds stale, in the log's order.
+        unreadable: sequence -> why its state could not be told (a file that does not read).
+    """
+
+    pending: list[str] = field(default_factory=list)
+    unreadable: dict[str, str] = field(default_factory=dict)
+
+
+def survey(request: LabelRequest) -> Survey:
+    """The sequences of the request's log that its store lacks or holds stale (in the stages the
+    request runs: all, or up to ``until``). The manifests decide: no finished ingest, changed source
+    files, or a stage not done / done with another config or upstream. A sequence whose files cannot
+    be read to tell is ``unreadable``, with the reason, and the others are surveyed.
+
+    Raises:
+        DataFormatError: the log itself does not open (its folder is gone, nothing detected).
+    """
     pipeline = request.pipeline()
     order = request.order(pipeline)
     first = order[0]
@@ -38,43 +64,89 @@ def pending_sequences(request: LabelRequest) -> list[str]:
         reader_options=dict(request.reader_options),
         stages=request.stage_configs(pipeline),
     )
-    out = []
+    found = Survey()
     for seq in reader.sequences():
-        m = store.read_manifest(seq, first)
-        if m is None or m.status != "done":
-            out.append(seq)
-            continue
-        if stage_fingerprint(store, pipeline, seq, first, run) != m.fingerprint or any(
-            stage_state(store, pipeline, seq, s, run)[0] != "done" for s in order
-        ):
-            out.append(seq)
-    return out
+        try:
+            m = store.read_manifest(seq, first)
+            if m is None or m.status != "done":
+                found.pending.append(seq)
+            elif stage_fingerprint(store, pipeline, seq, first, run) != m.fingerprint or any(
+                stage_state(store, pipeline, seq, s, run)[0] != "done" for s in order
+            ):
+                found.pending.append(seq)
+        except (DataFormatError, StoreError, OSError) as exc:  # e.g. a file being replaced right now
+            found.unreadable[seq] = str(exc)
+    return found
+
+
+def pending_sequences(request: LabelRequest) -> list[str]:
+    """The sequences a tick would label (:func:`survey`'s ``pending``)."""
+    return survey(request).pending
 
 
 @flow(name="auto-label", persist_result=False, validate_parameters=False)
-def auto_label(request: LabelRequest | dict[str, Any], dataset: str | None = None) -> dict[str, Any]:
+def auto_label(request: LabelRequest | dict[str, Any], dataset: str | None = None) -> Any:
     """One tick: label new or stale sequences of the request's log into its store (every stage, or up
-    to ``until``), score, publish."""
+    to ``until``), score, publish.
+
+    Returns:
+        ``{"labelled": [...], "failed": [...], "reasons": {seq: why}, **published}``; the run ends
+        completed with a message naming the sequences left out (they are tried again next tick),
+        or failed with one line when the watched log does not open.
+    """
     logger = get_run_logger()
     request = request if isinstance(request, LabelRequest) else LabelRequest.model_validate(request)
     name = dataset or request.dataset_name()
-    pending = pending_sequences(request)
-    logger.info("%d sequence(s) new or stale in %s: %s", len(pending), request.data, pending)
-    summary = label(request.model_copy(update={"sequences": pending})) if pending else []
     try:
-        published = publish(request.root, name, storage_options=request.storage_options)
+        found = survey(request)
+    except (DataFormatError, StoreError) as exc:  # the watched folder is gone or unreadable
+        logger.error("tick failed: %s", exc)
+        return Failed(message=f"the watched log does not open: {exc}")
+    logger.info("%d sequence(s) new or stale in %s: %s", len(found.pending), request.data, found.pending)
+    run = request.model_copy(update={"sequences": found.pending})
+    summary = label(run, isolate=True) if found.pending else []
+    reasons = dict(found.unreadable)
+    reasons.update({r["sequence"]: r["error"] for r in summary if r.get("action") == "failed"})
+    labelled = [s for s in found.pending if s not in reasons]
+    for seq, why in reasons.items():
+        logger.warning("sequence %s not labelled this tick (tried again next tick): %s", seq, why)
+    published = _publish(request, name, logger)
+    _tick_artifact(request, name, labelled, reasons, published)
+    result = {"labelled": labelled, "failed": list(reasons), "reasons": reasons, **published}
+    if not reasons:
+        return result
+    listed = "; ".join(f"{seq}: {why}" for seq, why in reasons.items())
+    return Completed(
+        message=f"labelled {len(labelled)} sequence(s); not labelled, tried again next tick: {listed}",
+        data=result,
+    )
+
+
+def _publish(request: LabelRequest, name: str, logger) -> dict[str, Any]:
+    try:
+        return publish(request.root, name, storage_options=request.storage_options)
     except StoreError as exc:  # an empty store (nothing ever labelled)
         logger.info("nothing to publish: %s", exc)
-        published = {"scored": False, "dashboard": None, "headline": {}}
+        return {"scored": False, "dashboard": None, "headline": {}}
+
+
+def _tick_artifact(
+    request: LabelRequest, name: str, labelled: list[str], reasons: dict[str, str], published: dict
+) -> None:
     lines = [
         f"# Auto-label tick · {name}",
         "",
         f"Watched log: `{request.data}` · run store: `{request.root}`",
         "",
-        f"Labelled {len(pending)} sequence(s): {', '.join(pending) or 'none (everything up to date)'}",
+        f"Labelled {len(labelled)} sequence(s): "
+        + (", ".join(labelled) or ("none" if reasons else "none (everything up to date)")),
         f"Stages: {', '.join(request.order(request.pipeline()))}",
         "",
     ]
+    if reasons:
+        lines += ["Not labelled this tick (tried again next tick):", ""]
+        lines += [f"- `{seq}`: {why}" for seq, why in reasons.items()]
+        lines.append("")
     if published["scored"]:
         h = published["headline"]
         lines.append(
@@ -84,8 +156,6 @@ def auto_label(request: LabelRequest | dict[str, Any], dataset: str | None = Non
     else:
         lines.append("No scores: no ground truth or no score stage in this pipeline yet.")
     create_markdown_artifact("\n".join(lines), key=f"auto-label-{dataset_key(name)}", description=name)
-    failed = [r["sequence"] for r in summary if r.get("action") == "failed"]
-    return {"labelled": pending, "failed": failed, **published}
 
 
 def serve(

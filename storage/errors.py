@@ -20,6 +20,15 @@ class StoreFormatError(StoreError):
     """The store was written in another store format: relabel into a new run folder."""
 
 
+class StoreAccessError(StoreError):
+    """A remote store cannot be used: its endpoint does not answer, no credentials were found, the
+    key is refused or the bucket does not exist. The message says what to check."""
+
+
+class NotAFolderError(StoreError):
+    """A store root (or a folder inside it) is a file: ``where`` names the file."""
+
+
 class ContractError(StoreError):
     """An array or table does not match the stage's declared contract."""
 

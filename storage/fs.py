@@ -21,7 +21,7 @@ from typing import Any
 
 import fsspec
 
-from storage.errors import StoreError, as_write_error
+from storage.errors import NotAFolderError, StoreError, as_write_error
 
 
 class RootFS:
@@ -38,11 +38,54 @@ class RootFS:
         opts = dict(self.storage_options)
         if self.uri.startswith("s3://"):
             opts.setdefault("use_listings_cache", False)  # other writers change listings under us
-        self.fs, root = fsspec.core.url_to_fs(self.uri, **opts)
-        self.local = _is_local(self.fs)
+        self._fs, root = fsspec.core.url_to_fs(self.uri, **opts)
+        self.local = _is_local(self._fs)
         self.root = str(Path(root).resolve()) if self.local else root.rstrip("/")
         if self.local:
             self.uri = self.root
+        self._checked = self.local
+
+    @property
+    def fs(self) -> fsspec.AbstractFileSystem:
+        """The filesystem; an S3 root's endpoint and credentials are checked on first use.
+
+        Raises:
+            StoreAccessError: the endpoint does not answer, no credentials, a refused key, no bucket.
+        """
+        if not self._checked:
+            self.check()
+        return self._fs
+
+    def check(self) -> None:
+        """Check that the root can be used, before anything is written: a local root (or a folder
+        above it) must not be a file; an S3 root's endpoint must answer with these credentials
+        (:func:`storage.remote.check_s3`; asked once per process).
+
+        Raises:
+            NotAFolderError: a file stands where the root's folder should be.
+            StoreAccessError: the S3 endpoint, credentials or bucket are not usable.
+        """
+        if self.local:
+            blocker = _file_in_the_way(self.root)
+            if blocker is not None:
+                raise self._not_a_folder(blocker)
+            return
+        proto = self._fs.protocol[0] if isinstance(self._fs.protocol, tuple) else self._fs.protocol
+        if proto in ("s3", "s3a"):
+            from storage.remote import check_s3
+
+            check_s3(self.uri, self.root, self.storage_options)
+        self._checked = True
+
+    def _not_a_folder(self, blocker: str) -> NotAFolderError:
+        if blocker == self.root:
+            return NotAFolderError(blocker, "is a file, not a run store folder: give a folder (new or a run)")
+        return NotAFolderError(blocker, "is a file where the run store needs a folder: the store is damaged")
+
+    def _folder_error(self, exc: OSError, rel: str) -> OSError | NotAFolderError:
+        """A NotADirectoryError (or a FileExistsError from makedirs) as the file in the way."""
+        blocker = _file_in_the_way(self.path(rel)) if self.local else None
+        return exc if blocker is None else self._not_a_folder(blocker)
 
     # -- paths -------------------------------------------------------------------------------
     def path(self, rel: str) -> str:
@@ -53,7 +96,7 @@ class RootFS:
         """Full URL of ``rel`` (with protocol for remote stores), for zarr and pyarrow."""
         if self.local:
             return self.path(rel)
-        proto = self.fs.protocol[0] if isinstance(self.fs.protocol, tuple) else self.fs.protocol
+        proto = self._fs.protocol[0] if isinstance(self._fs.protocol, tuple) else self._fs.protocol
         return f"{proto}://{self.path(rel)}"
 
     # -- reads -------------------------------------------------------------------------------
@@ -65,6 +108,8 @@ class RootFS:
             return self.fs.cat_file(self.path(rel))
         except FileNotFoundError:
             return None
+        except NotADirectoryError as exc:
+            raise self._folder_error(exc, rel) from None
 
     def read_json(self, rel: str) -> dict | None:
         data = self.read_bytes(rel)
@@ -77,7 +122,11 @@ class RootFS:
 
     def exists(self, rel: str) -> bool:
         if self.local:
-            return os.path.exists(self.path(rel))
+            if os.path.exists(self.path(rel)):
+                return True
+            if os.path.isfile(self.root):  # one stat, only when the answer is no
+                raise self._not_a_folder(self.root)
+            return False
         return self.fs.exists(self.path(rel))
 
     def size(self, rel: str) -> int | None:
@@ -88,6 +137,8 @@ class RootFS:
             return int(self.fs.info(self.path(rel))["size"])
         except FileNotFoundError:
             return None
+        except NotADirectoryError as exc:
+            raise self._folder_error(exc, rel) from None
 
     def sizes(self, rel: str) -> dict[str, int]:
         """Every file under the folder ``rel``, as ``{path relative to rel: size}`` (one walk, or
@@ -95,6 +146,8 @@ class RootFS:
         out: dict[str, int] = {}
         if self.local:
             base = self.path(rel)
+            if os.path.isfile(self.root):
+                raise self._not_a_folder(self.root)
             for folder, _, files in os.walk(base):
                 for name in files:
                     path = os.path.join(folder, name)
@@ -121,6 +174,8 @@ class RootFS:
                 return sorted(os.listdir(self.path(rel)))
             except FileNotFoundError:
                 return []
+            except NotADirectoryError as exc:
+                raise self._folder_error(exc, rel) from None
         try:
             self.fs.invalidate_cache(self.path(rel))
             return sorted(posixpath.basename(p.rstrip("/")) for p in self.fs.ls(self.path(rel), detail=False))
@@ -141,6 +196,8 @@ class RootFS:
             except OSError as exc:  # full, read-only or forbidden: typed, naming the object
                 typed = as_write_error(exc, self.url(rel))
                 if typed is None:
+                    if isinstance(exc, NotADirectoryError | FileExistsError):
+                        raise self._folder_error(exc, rel) from None
                     raise
                 raise typed from exc
             finally:
@@ -163,7 +220,10 @@ class RootFS:
         """Create ``rel`` only if it does not exist. Returns False when it already exists."""
         path = self.path(rel)
         if self.local:
-            os.makedirs(os.path.dirname(path), exist_ok=True)
+            try:
+                os.makedirs(os.path.dirname(path), exist_ok=True)
+            except (NotADirectoryError, FileExistsError) as exc:
+                raise self._folder_error(exc, rel) from None
             # write the content under a temporary name first, then hard-link it into place:
             # link() fails if the target exists, and a reader never sees an empty lock file
             tmp = _tmp_name(path)
@@ -217,12 +277,26 @@ class RootFS:
 
     def makedirs(self, rel: str) -> None:
         if self.local:
-            os.makedirs(self.path(rel), exist_ok=True)
+            try:
+                os.makedirs(self.path(rel), exist_ok=True)
+            except (NotADirectoryError, FileExistsError) as exc:
+                raise self._folder_error(exc, rel) from None
 
 
 def _is_local(fs: fsspec.AbstractFileSystem) -> bool:
     proto = fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,)
     return "file" in proto or "local" in proto
+
+
+def _file_in_the_way(path: str) -> str | None:
+    """The first of ``path`` and the folders above it (from the top) that exists and is not a folder."""
+    here = Path(path)
+    for folder in [*reversed(here.parents), here]:
+        if not folder.exists():
+            return None
+        if not folder.is_dir():
+            return str(folder)
+    return None
 
 
 def _tmp_name(path: str) -> str:

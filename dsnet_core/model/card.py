@@ -72,8 +72,12 @@ def write_card(path: str | Path, card: ModelCard) -> None:
     _atomic_write_text(path / CARD, json.dumps(card.__dict__, indent=2, sort_keys=True))
 
 
-def read_card(path: str | Path) -> ModelCard:
-    """Read and validate ``CKPT/card.json``."""
+def card_json(path: str | Path) -> dict:
+    """The JSON object of ``CKPT/card.json`` (any method's card), unvalidated.
+
+    Raises:
+        CheckpointError: no card, not JSON, or not a JSON object.
+    """
     card_path = Path(path) / CARD
     if not card_path.is_file():
         raise CheckpointError(card_path, "no model card (is this a checkpoint folder?)")
@@ -81,9 +85,18 @@ def read_card(path: str | Path) -> ModelCard:
         data = json.loads(card_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise CheckpointError(card_path, f"model card is not valid JSON: {exc}") from exc
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
+    if not isinstance(data, dict):
+        raise CheckpointError(card_path, "model card is not a JSON object")
+    return data
+
+
+def read_card(path: str | Path) -> ModelCard:
+    """Read and validate ``CKPT/card.json``."""
+    card_path = Path(path) / CARD
+    data = card_json(path)
+    if data.get("format") != FORMAT:
         hint = ""
-        if isinstance(data, dict) and str(data.get("format", "")).startswith("most-checkpoint"):
+        if str(data.get("format", "")).startswith("most-checkpoint"):
             hint = " — a MOST checkpoint: label with --method most"
         raise CheckpointError(card_path, f"not a {FORMAT} model card{hint}")
     try:

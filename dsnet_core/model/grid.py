@@ -7,6 +7,11 @@ import math
 from dataclasses import dataclass
 
 CONVENTIONS = ("ours", "reference")
+MAX_CELLS = 1 << 31
+"""The largest grid taken (ρ·φ·z cells, ~2.1e9: 390× the paper's 480×360×32). Voxel keys are
+``batch · cells`` int64 and each sparse level's dense lookup table (int32, up to 2^26 cells:
+256 MB) is sized from the cell count; no trained model comes near, and a card asking for more
+(a 1e12-cell grid labels "fine" with every point in a cell of its own) is refused."""
 
 
 @dataclass(frozen=True)
@@ -28,6 +33,12 @@ class CylinderGrid:
     def __post_init__(self) -> None:
         if len(self.size) != 3 or min(self.size) < 1:
             raise ValueError(f"grid size must be three positive ints, got {self.size}")
+        cells = math.prod(self.size)
+        if cells > MAX_CELLS:
+            raise ValueError(
+                f"grid {'×'.join(map(str, self.size))} has {cells:.3g} cells, more than the {MAX_CELLS:.3g} "
+                "(2^31) a grid may have (the paper's 480×360×32 has 5.5e+06)"
+            )
         if any(hi <= lo for lo, hi in zip(self.min_bound, self.max_bound, strict=True)):
             raise ValueError(f"grid bounds must satisfy min < max, got {self.min_bound}..{self.max_bound}")
         if self.convention not in CONVENTIONS:

@@ -82,8 +82,10 @@ class ModelConfig:
                 grid=CylinderGrid.from_dict(d["grid"]),
                 **{key: type(default)(d.get(key, default)) for key, default in _OPTIONAL.items()},
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ConfigError(f"invalid model config {d!r}: {exc}") from exc
+        except KeyError as exc:
+            raise ConfigError(f"model config has no field {exc}") from exc
+        except (TypeError, ValueError) as exc:  # one line: the config itself is not repeated
+            raise ConfigError(str(exc)) from exc
 
 
 POOLINGS = ("mean", "max")

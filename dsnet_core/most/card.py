@@ -3,28 +3,15 @@ folder holds); :mod:`dsnet_core.most.checkpoint` adds the weights."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from dsnet_core.errors import CheckpointError
-from dsnet_core.model.card import CARD, ModelCard
+from dsnet_core.errors import CheckpointError, ConfigError
+from dsnet_core.model.card import CARD, ModelCard, card_json
 from dsnet_core.model.card import FORMAT as DSNET_FORMAT
+from dsnet_core.most.config import MostConfig
 
 MOST_FORMAT = "most-checkpoint/1"
 FORMATS = {DSNET_FORMAT: "dsnet", MOST_FORMAT: "most"}
-
-
-def _card_json(path: Path) -> dict:
-    card_path = path / CARD
-    if not card_path.is_file():
-        raise CheckpointError(card_path, "no model card (is this a checkpoint folder?)")
-    try:
-        data = json.loads(card_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CheckpointError(card_path, f"model card is not valid JSON: {exc}") from exc
-    if not isinstance(data, dict):
-        raise CheckpointError(card_path, "model card is not a JSON object")
-    return data
 
 
 def checkpoint_method(path: str | Path) -> str:
@@ -33,7 +20,7 @@ def checkpoint_method(path: str | Path) -> str:
     Raises:
         CheckpointError: no readable card, or an unknown format.
     """
-    data = _card_json(Path(path))
+    data = card_json(Path(path))
     fmt = data.get("format")
     if fmt not in FORMATS:
         raise CheckpointError(
@@ -45,7 +32,7 @@ def checkpoint_method(path: str | Path) -> str:
 def read_most_card(path: str | Path) -> ModelCard:
     """Read and validate a MOST checkpoint's ``card.json``."""
     path = Path(path)
-    data = _card_json(path)
+    data = card_json(path)
     if data.get("format") != MOST_FORMAT:
         hint = (
             " — a DS-Net checkpoint: label with --method dsnet" if data.get("format") == DSNET_FORMAT else ""
@@ -55,6 +42,11 @@ def read_most_card(path: str | Path) -> ModelCard:
             f"not a MOST checkpoint (format {data.get('format')!r}, expected {MOST_FORMAT}){hint}",
         )
     try:
-        return ModelCard(**data)
+        card = ModelCard(**data)
     except TypeError as exc:
         raise CheckpointError(path / CARD, f"model card has unexpected fields: {exc}") from exc
+    try:  # the architecture's error (a grid beyond its bound, a missing field) is the card's
+        MostConfig.from_dict(card.architecture)
+    except (ConfigError, TypeError, KeyError, ValueError, AttributeError) as exc:
+        raise CheckpointError(path / CARD, f"model card architecture is malformed: {exc}") from exc
+    return card

@@ -14,6 +14,9 @@ from dsnet_core.errors import ConfigError
 from dsnet_core.model.presets import ModelConfig, get_preset
 
 DEFAULT_SCANS = 3
+MAX_BEV_CELLS = 1 << 24
+"""The largest BEV grid taken (4096² cells). Its feature map is dense: ``bev_channels`` float32 per
+cell and volume, 2 GiB at 32 channels (the default 100 m / 0.5 m grid has 40,000 cells, 5 MB)."""
 
 
 @dataclass(frozen=True)
@@ -29,8 +32,13 @@ class BevGrid:
     cell: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.half_extent <= 0 or self.cell <= 0:
+        if not (self.half_extent > 0 and self.cell > 0):
             raise ConfigError(f"BEV grid needs positive half_extent and cell, got {self}")
+        if self.size**2 > MAX_BEV_CELLS:
+            raise ConfigError(
+                f"BEV grid of {self.size}² = {self.size**2:.3g} cells (half_extent {self.half_extent} m, "
+                f"cell {self.cell} m) is more than the {MAX_BEV_CELLS:.3g} (4096²) its dense maps may take"
+            )
 
     @property
     def size(self) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -113,11 +114,14 @@ def plan_from_seed(
         )
     poses = _ego_poses(scene, times, spec.height, config.jitter_deg, rng)
     if scene.ground is not None:  # stand on the road surface and pitch with its grade
-        x, y, yaw = poses[:, 0, 3], poses[:, 1, 3], np.arctan2(poses[:, 1, 0], poses[:, 0, 0])
+        # math.atan2/atan (the C library's, as numpy's own loop uses on AVX2 CPUs and on strided
+        # input): numpy's arctan2/arctan take other kernels on AVX-512 CPUs that differ in the last bit
+        x, y = poses[:, 0, 3], poses[:, 1, 3]
+        yaw = np.array([math.atan2(s, c) for s, c in zip(poses[:, 1, 0], poses[:, 0, 0], strict=True)])
         ahead = scene.ground.surface(x + np.cos(yaw), y + np.sin(yaw))
         behind = scene.ground.surface(x - np.cos(yaw), y - np.sin(yaw))
         poses[:, 2, 3] += scene.ground.surface(x, y)
-        pitch = -np.arctan((ahead - behind) / 2.0)
+        pitch = -np.array([math.atan(g) for g in (ahead - behind) / 2.0])
         c, s = np.cos(pitch), np.sin(pitch)
         tilt = np.zeros((frames, 3, 3))
         tilt[:, 0, 0], tilt[:, 0, 2], tilt[:, 1, 1], tilt[:, 2, 0], tilt[:, 2, 2] = c, s, 1.0, -s, c

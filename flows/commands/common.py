@@ -53,6 +53,27 @@ def errors_exit() -> Iterator[None]:
         fail(typed)
 
 
+def check_output(path, option: str, kind: str) -> None:
+    """Refuse an output path before anything is written: ``kind`` ``"folder"`` must not be a file (nor
+    lie under one), ``"file"`` must not be a folder (nor lie under a file).
+
+    Raises:
+        OutputPathError: naming the path, the option and what to give instead.
+    """
+    from pathlib import Path
+
+    from dsnet_core.errors import OutputPathError
+
+    here = Path(path).expanduser().absolute()
+    for above in reversed(here.parents):
+        if above.exists() and not above.is_dir():
+            raise OutputPathError(above, f"is a file, so {option} {path} cannot be written under it")
+    if kind == "folder" and here.exists() and not here.is_dir():
+        raise OutputPathError(here, f"is a file, but {option} names the folder to write: give a folder")
+    if kind == "file" and here.is_dir():
+        raise OutputPathError(here, f"is a folder, but {option} names the file to write: give a file name")
+
+
 def validation_line(exc) -> str:
     """A pydantic ValidationError of command-line settings as one line naming each option:
     ``--scans 0: Input should be greater than or equal to 1``."""
@@ -62,7 +83,8 @@ def validation_line(exc) -> str:
         name = "--" + loc[0].replace("_", "-") if len(loc) == 1 else ".".join(loc) or "value"
         shown = err.get("input")
         value = "" if isinstance(shown, dict) or shown is None else f" {shown!r}"
-        parts.append(f"{name}{value}: {err.get('msg', 'invalid')}")
+        msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+        parts.append(msg if msg.startswith(name + " ") else f"{name}{value}: {msg}")
     return "; ".join(parts)
 
 

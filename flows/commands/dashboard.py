@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def dashboard(
@@ -22,8 +22,7 @@ def dashboard(
     from flows.publish import refresh_report
 
     with errors_exit():
-        if out.is_dir():
-            raise ValueError(f"--out {out}: is a folder; give the HTML file to write")
+        check_output(out, "--out", "file")
         for root in roots:
             refresh_report(root)
         path = build_dashboard(roots, out, title)

@@ -24,10 +24,8 @@ def demo(
     import json
     import shutil
 
-    from dsnet_core.checkpoints import bundled_checkpoint, bundled_dir
     from dsnet_core.io.describe import summarize
     from dsnet_core.io.formats import open_log
-    from dsnet_core.model.checkpoint import read_card
     from flows.commands.describe import print_log_summary
     from flows.commands.eval import print_result, score_predictions
     from flows.commands.label import print_stage_table, run_label
@@ -45,26 +43,9 @@ def demo(
     with errors_exit():
         print_log_summary(summarize(open_log(log)))
 
-    ckpt = checkpoint if checkpoint is not None else bundled_checkpoint(scans)
+    ckpt = _model(checkpoint, scans, out, log, run)
     if ckpt is None:
-        typer.echo(
-            f"no bundled model: {bundled_dir(scans)} holds no trained checkpoint (a copy of the package "
-            "without its model files?), so this demo stops "
-            "after generating and checking the log. Label it with your own model:\n"
-            f"  dsnet demo --out {out} --checkpoint PATH\n"
-            f"  dsnet label {log} --run {run} --checkpoint PATH"
-        )
         return
-    with errors_exit():
-        card = read_card(ckpt)
-    source = "bundled model" if checkpoint is None else "checkpoint"
-    typer.echo(f"model: {source} {Path(ckpt).resolve()} (epochs {card.epochs or 'none'})")
-    if not card.epochs:
-        typer.secho(
-            "      its model card records no training (random weights?): the scores below test the "
-            "pipeline, they say nothing about a model",
-            fg=typer.colors.YELLOW,
-        )
     typer.echo(f"[3/5] labelling with k = {scans} ({'3D' if scans == 1 else '4D'} panoptic) into {run}")
     with errors_exit():
         settings = LabelSettings(scans=scans, checkpoint=str(ckpt))
@@ -95,3 +76,32 @@ def demo(
     )
     if (run / "dashboard.html").exists():  # written by the label flow's score report
         typer.echo(f"dashboard {(run / 'dashboard.html').resolve()}")
+
+
+def _model(checkpoint: Path | None, scans: int, out: Path, log: Path, run: Path) -> Path | None:
+    """The checkpoint the demo labels with (the bundled one for k = ``scans`` by default), said;
+    None, with what to do instead, when the package holds no model."""
+    from dsnet_core.checkpoints import bundled_checkpoint, bundled_dir
+    from dsnet_core.model.card import read_card
+
+    ckpt = checkpoint if checkpoint is not None else bundled_checkpoint(scans)
+    if ckpt is None:
+        typer.echo(
+            f"no bundled model: {bundled_dir(scans)} holds no trained checkpoint (a copy of the package "
+            "without its model files?), so this demo stops "
+            "after generating and checking the log. Label it with your own model:\n"
+            f"  dsnet demo --out {out} --checkpoint PATH\n"
+            f"  dsnet label {log} --run {run} --checkpoint PATH"
+        )
+        return None
+    with errors_exit():
+        card = read_card(ckpt)
+    source = "bundled model" if checkpoint is None else "checkpoint"
+    typer.echo(f"model: {source} {Path(ckpt).resolve()} (epochs {card.epochs or 'none'})")
+    if not card.epochs:
+        typer.secho(
+            "      its model card records no training (random weights?): the scores below test the "
+            "pipeline, they say nothing about a model",
+            fg=typer.colors.YELLOW,
+        )
+    return Path(ckpt)

@@ -23,7 +23,7 @@ def eval_command(
     pred: Path = typer.Option(
         ...,
         "--pred",
-        help="Prediction root: sequences/SS/predictions/*.label, or for a nuScenes log also the "
+        help="Prediction root: .label files in sequences/SS/predictions/, or for a nuScenes log also the "
         "results of `dsnet export --format nuscenes` (panoptic/<split>/).",
     ),
     sequences: str = typer.Option(

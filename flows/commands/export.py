@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def export(
@@ -15,8 +15,8 @@ def export(
     format: str = typer.Option(
         None,
         "--format",
-        help="semantickitti (sequences/SS/predictions/*.label), folder (SEQ/<scan name>.label), rosbag "
-        "(BAG/<stamp ns>.label) or nuscenes (lidarseg/ and panoptic/ results by sample_data token); "
+        help="semantickitti (.label files in sequences/SS/predictions/), folder (SEQ/<scan name>.label), "
+        "rosbag (BAG/<stamp ns>.label) or nuscenes (lidarseg/ and panoptic/ results by sample_data token); "
         "default: the format of the run's log.",
     ),
     split: str = typer.Option(
@@ -30,6 +30,7 @@ def export(
 
     seqs = sequences.split(",") if sequences else None
     with errors_exit():
+        check_output(out, "--out", "folder")
         format = format or default_export_format(root)
     if format not in EXPORT_FORMATS:
         raise typer.BadParameter(f"unknown format {format!r} (available: {', '.join(EXPORT_FORMATS)})")
@@ -49,5 +50,11 @@ def export(
         missing = summary.missing[seq]
         if missing:
             line += f" ({len(missing)} frames without a label: {', '.join(missing[:5])})"
+        removed = summary.removed.get(seq)
+        if removed:
+            line += (
+                f"; removed {len(removed)} .label files an earlier export left for frames this export does "
+                f"not write: {', '.join(removed[:5])}{', …' if len(removed) > 5 else ''}"
+            )
         typer.echo(line)
     typer.echo(f"wrote {format} labels to {where}")

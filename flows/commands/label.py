@@ -8,7 +8,7 @@ from collections.abc import Iterator
 import typer
 
 from flows.commands import options as o
-from flows.commands.common import errors_exit
+from flows.commands.common import errors_exit, fail
 from tasks.methods import DEFAULT_METHOD
 
 
@@ -56,10 +56,10 @@ def label(
     """Label a log into a run store, resuming whatever is already done there (dsnet: ingest → align →
     infer → shift → fuse → stitch|track → score; most: … → most → track → score; dpls: … → prior →
     dpls → shift → fuse → stitch|track → score)."""
-    import time
+    from pathlib import Path
 
-    from flows.commands.label_report import run_report
-    from flows.pending import pending_sequences
+    if "://" not in data and not Path(data).expanduser().exists():  # before the heavy imports
+        fail(f"{data}: no such file or folder")
     from flows.request import LabelRequest, parse_reader_options
 
     with errors_exit():
@@ -82,6 +82,20 @@ def label(
             until=until,
             force=force,
         )
+    execute(request, workers, dask_address, debug)
+
+
+def execute(request, workers: int | None, dask_address: str | None, debug: bool) -> None:
+    """Check the services and the request, then label what is pending (nothing: no server at all)
+    and print the run's summary; exit 1 when a sequence failed."""
+    import time
+
+    from flows.commands.label_report import run_report
+    from flows.pending import pending_sequences
+    from flows.services import check_services
+
+    with errors_exit():
+        check_services(dask_address)  # PREFECT_API_URL and --dask-address, in seconds, before the rest
         request.check()
         pending = pending_sequences(request)
     t0 = time.monotonic()

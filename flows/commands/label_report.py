@@ -16,7 +16,6 @@ def run_report(
         summary: one row per (sequence, stage), plus ``failed`` rows.
         seconds: the run's wall time.
     """
-    from storage.errors import StoreError
     from storage.run import DASHBOARD, RunStore
 
     store = RunStore(root, storage_options)
@@ -36,21 +35,28 @@ def run_report(
         for r in summary:
             if r.get("action") == "failed":
                 lines.append(f"  failed: sequence {r['sequence']}: {r.get('error', '')}")
-    try:
-        from flows.report import read_report_table
-
-        run = read_report_table(store, "score_run").to_pylist()[0]
-        scores = " · ".join(
-            f"{name} {100 * run[key]:.1f}" for name, key in (("PQ", "pq"), ("mIoU", "miou"), ("LSTQ", "lstq"))
-            if run.get(key) is not None
-        )  # fmt: skip
-        lines.append(f"  scores ({run.get('mode', 'official')}, {run.get('frames', '?')} frames): {scores}")
-    except (StoreError, FileNotFoundError, IndexError, KeyError):
-        lines.append("  no ground truth scored (a log without labels, or no score stage)")
+    lines.append("  " + headline(store))
     if store.root.exists(DASHBOARD):
         lines.append(f"  dashboard: {store.root.url(DASHBOARD)}")
     lines.append(f"  next: dsnet export {root} --out predictions   (dsnet status {root} for every stage)")
     return lines
+
+
+def headline(store) -> str:
+    """``scores (official, 20 frames): PQ 41.5 · mIoU 37.3 · LSTQ 48.1``, or that nothing is scored."""
+    from storage.errors import StoreError
+
+    try:
+        from flows.report import read_report_table
+
+        run = read_report_table(store, "score_run").to_pylist()[0]
+    except (StoreError, FileNotFoundError, IndexError, KeyError):
+        return "no ground truth scored (a log without labels, or no score stage)"
+    scores = " · ".join(
+        f"{name} {100 * run[key]:.1f}" for name, key in (("PQ", "pq"), ("mIoU", "miou"), ("LSTQ", "lstq"))
+        if run.get(key) is not None
+    )  # fmt: skip
+    return f"scores ({run.get('mode', 'official')}, {run.get('frames', '?')} frames): {scores}"
 
 
 def _labelled_frames(store, summary: list[dict[str, Any]]) -> int:

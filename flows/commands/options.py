@@ -68,8 +68,8 @@ SemanticPrior = Annotated[
     str | None,
     typer.Option(
         "--semantic-prior",
-        help="dpls: per-scan predictions of any network (DIR/sequences/SEQ/predictions/ID.label|.npy); "
-        "default: the bundled model's semantics.",
+        help="dpls: per-scan predictions of any network (ID.label or ID.npy in sequences/SEQ/"
+        "predictions/ under DIR); default: the bundled model's semantics.",
         rich_help_panel=METHOD,
     ),
 ]

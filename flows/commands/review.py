@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 review = typer.Typer(
     help="The review loop: export the least confident frames of a run.", no_args_is_help=True
@@ -24,6 +24,7 @@ def export_review_command(
     from flows.review import export_review
 
     with errors_exit():
+        check_output(out, "--out", "folder")
         rows = export_review(root, out, top)
     for r in rows:
         typer.echo(

@@ -60,6 +60,9 @@ def serve(
             "export PREFECT_API_URL=http://127.0.0.1:4200/api"
         )
     with errors_exit():
+        from flows.services import check_prefect_api
+
+        check_prefect_api(os.environ["PREFECT_API_URL"])
         settings = o.label_settings(
             scans, stride, checkpoint, clusterer, estimate_poses, max_points, device,
             semantic_prior=semantic_prior, prior_label_map=prior_label_map, temporal=temporal,

@@ -41,5 +41,8 @@ def status(
     for row in view.report_rows(verbose) + view.dashboard_row(verbose):
         table.add_row(*row)
     Console(width=160 if verbose else 140).print(table)
+    from flows.commands.label_report import headline
+
+    typer.echo(headline(view.store))
     for line in view.notes(verbose):
         typer.echo(line)

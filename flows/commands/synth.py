@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import errors_exit
+from flows.commands.common import check_output, errors_exit
 
 
 def synth(
@@ -25,17 +25,18 @@ def synth(
         "classic",
         help="Street: classic, residential, arterial, downtown, junction, parking_lot, country, or random "
         "(drawn per sequence). Anything but classic with hdl64/vlp32 also draws the sensor's mounting, "
-        "noise and remission per sequence; each sequence's choices go to sequences/SS/synth.json.",
+        "noise and remission per sequence; each sequence's choices go to synth.json in its folder.",
     ),
     variety: str = typer.Option(
         "base",
         help="How widely the street styles vary: base, or wide (textured and low buildings, fences of "
         "any height and porosity, bark, people by trees and on grass, rough grass, patchy remission, "
-        "flush kerbs, vans as cars; docs/synth_giveaways.md). The classic street ignores it.",
+        "flush kerbs, vans as cars). The classic street ignores it.",
     ),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
     with errors_exit():
+        check_output(out, "OUT", "folder")
         generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style, variety)
     what = sensor if style == "classic" else f"{style} street, {sensor}"
     what += "" if variety == "base" or style == "classic" else f", {variety} variety"

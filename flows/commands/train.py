@@ -28,8 +28,9 @@ def _parameter(name: str, field) -> inspect.Parameter:
     """A typer parameter of one TrainOptions field (``data`` is the argument, the rest options)."""
     kind = inspect.Parameter.POSITIONAL_OR_KEYWORD
     annotation = field.annotation
-    if annotation is bool:
-        opt = typer.Option(field.default, f"--{name.replace('_', '-')}/--no-{name.replace('_', '-')}")
+    if annotation is bool:  # a flag; its negation only where it is on by default
+        flag = f"--{name.replace('_', '-')}"
+        opt = typer.Option(field.default, f"{flag}/--no-{flag[2:]}" if field.default else flag)
     elif name == "data":
         return inspect.Parameter(
             name, kind, annotation=Path | None, default=typer.Argument(None, help=field.description)

@@ -99,7 +99,7 @@ class TrainOptions(BaseModel):
     val_sequences: str | None = Field(None, description="Validation sequences (default: the training ones).")
     lr: float = Field(1e-3, gt=0, description="Adam learning rate (the start of each stage's schedule).")
     seed: int = Field(0, ge=0, description="Seed of initialisation, shuffling and augmentation.")
-    augment: bool = Field(True, description="Yaw/flip/scale/translation augmentation.")
+    augment: bool = Field(True, description="Yaw, flip, scale and translation augmentation.")
     threads: int = Field(1, ge=1, description="Torch CPU threads.")
 
     @field_validator("device")
@@ -114,8 +114,20 @@ class TrainOptions(BaseModel):
         rest; ``"a=3,b=1"`` → per stage, unnamed stages 0.
 
         Raises:
-            ValueError: an unknown stage, a count that is not a whole number ≥ 0.
+            ValueError: an unknown stage, a count that is not a whole number ≥ 0, or 0 epochs for
+                every stage (nothing would be trained, yet a checkpoint written).
         """
+        out = self._epoch_counts(stages, default_all)
+        if not any(out.values()):
+            raise ValueError(
+                f"--epochs {self.epochs!r}: 0 epochs for every stage ({', '.join(stages)}) would write an "
+                "untrained checkpoint; give N ≥ 1"
+            )
+        return out
+
+    def _epoch_counts(
+        self, stages: tuple[str, ...], default_all: tuple[str, ...] | None = None
+    ) -> dict[str, int]:
         out = dict.fromkeys(stages, 0)
         try:
             if "=" not in self.epochs:

@@ -52,6 +52,12 @@ class Dsnet(Method):
         infer: dict[str, Any] = {}
         if settings.checkpoint:
             infer["checkpoint"] = absolute(settings.checkpoint)
+        elif settings.equivariant is not None:  # the bundled C_n model, where one is bundled
+            from dsnet_core.checkpoints import bundled_equivariant_checkpoint
+
+            found = bundled_equivariant_checkpoint(settings.equivariant)
+            if found is not None:
+                infer["checkpoint"] = str(found)
         if settings.device:
             infer["device"] = settings.device
         if settings.tta != 1 or settings.tta_flip:

@@ -110,6 +110,11 @@ def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None)
     if options.stream and (options.val_data is None or options.holdout):
         raise ConfigError("--stream needs --val-data VAL (the stream has no fixed frames to hold out)")
     epochs = options.epoch_counts(TRAIN_STAGES, PLAIN_STAGES)
+    if options.stage != "all" and not epochs[options.stage]:
+        raise ConfigError(
+            f"--stage {options.stage} with --epochs {options.epochs!r} trains 0 epochs: name it (e.g. "
+            f"--epochs {options.stage}=2)"
+        )
     config = model_config(options)
     torch.set_num_threads(options.threads)
     stream = stream_reader(options) if options.stream else None

@@ -121,6 +121,11 @@ class Most(Method):
 
         assert isinstance(options, MostTrainOptions)
         epochs = options.epoch_counts(TRAIN_STAGES)
+        if options.stage != "all" and not epochs[options.stage]:
+            raise ValueError(
+                f"--stage {options.stage} with --epochs {options.epochs!r} trains 0 epochs: name it (e.g. "
+                f"--epochs {options.stage}=2)"
+            )
         backbone = get_preset(options.preset)
         if options.grid:
             backbone = replace(backbone, grid=replace(backbone.grid, size=parse_grid(options.grid)))

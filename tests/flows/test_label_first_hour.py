@@ -69,6 +69,9 @@ def test_a_rerun_with_nothing_to_do_needs_no_server_and_both_end_with_a_summary(
     assert again.stdout.splitlines()[0].startswith(f"nothing to do: every stage of every sequence in {run}")
     assert again.stdout.splitlines()[1:] == lines[-3:]
 
+    status = _run("status", run)  # the headline scores there too (#33.5)
+    assert status.returncode == 0 and lines[-3].strip() in status.stdout.splitlines(), status.stdout
+
     # from another working directory, the log given relative to it, the run folder still takes
     # its own log (#33.3: the run records where the log is, not the path as typed)
     relative = os.path.relpath(synth_log, run.parent)

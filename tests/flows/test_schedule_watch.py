@@ -69,3 +69,22 @@ def test_a_late_and_a_failed_run_are_reported_with_their_reasons(deployment):
         f"warning: scheduled run 'failed-one' of {name} ended failed: watched log /x: no such folder" in lines
     )
     assert len(lines) == 2
+
+
+def test_a_completed_tick_that_left_sequences_out_is_reported_with_its_message(deployment):
+    from prefect.states import Completed
+
+    client, dep_id, name = deployment
+    lines: list[str] = []
+    watch = ScheduleWatch(name, lines.append, grace_s=60)
+    note = "labelled 1 sequence(s); not labelled, tried again next tick: 01: ingest: /x/000001.bin: truncated"
+    for run_name, message in (
+        ("partial-one", note),
+        ("plain-one", None),
+        ("stock-one", "All states completed."),
+    ):
+        run = client.create_flow_run_from_deployment(dep_id, name=run_name)
+        client.set_flow_run_state(run.id, Completed(message=message), force=True)
+    watch.check(client)
+    watch.check(client)
+    assert lines == [f"warning: scheduled run 'partial-one' of {name}: {note}"]

@@ -9,69 +9,16 @@ minute ("Can't evaluate bulk DML statement") and no flow run is ever created.
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
-import sys
 import time
-import urllib.request
-from pathlib import Path
 
 import pytest
 
 from storage.run import RunStore
 from tests.flows.conftest import REPO, cli
+from tests.helpers.services import start_prefect_server, stop
 
 pytestmark = pytest.mark.slow
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
-def start_prefect_server(home: Path, log: Path) -> tuple[subprocess.Popen, str]:
-    """``prefect server start`` on a free loopback port with its own PREFECT_HOME (SQLite there);
-    returns the process and its API URL once ``/api/health`` answers."""
-    port = _free_port()
-    env = {
-        **{k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")},
-        "PREFECT_HOME": str(home),
-        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
-        "PREFECT_UI_ENABLED": "false",
-    }
-    prefect = Path(sys.executable).with_name("prefect")
-    with open(log, "wb") as out:
-        proc = subprocess.Popen(
-            [str(prefect), "server", "start", "--host", "127.0.0.1", "--port", str(port), "--no-ui"],
-            env=env,
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-    url = f"http://127.0.0.1:{port}/api"
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"prefect server exited: {log.read_text()[-2000:]}")
-        try:
-            with urllib.request.urlopen(f"{url}/health", timeout=2) as res:
-                if res.status == 200:
-                    return proc, url
-        except OSError:
-            time.sleep(0.5)
-    _stop(proc)
-    raise RuntimeError(f"prefect server did not answer within 120 s: {log.read_text()[-2000:]}")
 
 
 def test_a_watched_log_is_labelled_by_the_schedule_alone(tmp_path):
@@ -111,5 +58,5 @@ def test_a_watched_log_is_labelled_by_the_schedule_alone(tmp_path):
         for stage in ("ingest", "align", "infer", "shift", "fuse", "track", "score"):
             assert store.read_manifest("00", stage).status == "done", stage
     finally:
-        _stop(proc)
-        _stop(server)
+        stop(proc)
+        stop(server)

@@ -1,5 +1,6 @@
 """Shared by the rotation tests (test-time augmentation, equivariance): clouds kept away from
-cell boundaries, float64 yaw rotations, and random-weight networks with realistic activations."""
+cell boundaries, float64 yaw rotations, random-weight networks with realistic activations, and the
+comparison of rotated logits that survives float rounding."""
 
 from __future__ import annotations
 
@@ -66,3 +67,22 @@ def calibrated(net: DSNet, clouds: list[torch.Tensor], **kwargs) -> DSNet:
                 mod.momentum = None
         net(clouds, **kwargs)
     return net.eval()
+
+
+def assert_same_classes(
+    logits: torch.Tensor, ref: torch.Tensor, atol: float, min_clear: float = 0.98
+) -> None:
+    """``logits`` within ``atol`` of ``ref`` (both ``(N, C)``), and the same class wherever ``ref``'s
+    two best logits lie more than ``2 · atol`` apart.
+
+    Closer pairs are near-ties that rounding may swap: a rotated input reaches the network as other
+    float32 numbers, and how sums round differs between CPUs' vector kernels (AVX2 vs AVX-512), so
+    their argmax is not a property of the network. At least ``min_clear`` of the points must be
+    clear of ties, so the class check covers nearly all of them.
+    """
+    torch.testing.assert_close(logits, ref, atol=atol, rtol=0)
+    best = ref.topk(2, dim=1).values
+    clear = best[:, 0] - best[:, 1] > 2 * atol
+    share = float(clear.float().mean())
+    assert share >= min_clear, f"only {share:.1%} of the points are clear of near-ties"
+    assert torch.equal(logits.argmax(1)[clear], ref.argmax(1)[clear])

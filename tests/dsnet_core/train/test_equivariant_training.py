@@ -57,13 +57,18 @@ def test_equivariant_training_stages(tmp_path):
 def test_a_trained_equivariant_model_is_equivariant_and_the_cli_records_n(tmp_path):
     """``dsnet train dsnet --equivariant 4`` on a tiny log; the trained network's semantics are invariant
     and its offsets rotate with yaw rotations by multiples of 90° (float64 rotations, points kept
-    1e-6 rad from cell boundaries)."""
+    1e-6 rad from cell boundaries), within float rounding: logits to 2.5e-4, classes away from
+    near-ties, offsets to 5e-5 m."""
     import numpy as np
     from typer.testing import CliRunner
 
     from dsnet_core.model.equivariant import rotate_xy
     from flows.cli import app
-    from tests.dsnet_core.model.rotation_helpers import away_from_cell_boundaries, rotate64
+    from tests.dsnet_core.model.rotation_helpers import (
+        assert_same_classes,
+        away_from_cell_boundaries,
+        rotate64,
+    )
 
     log = write_tiny_log(tmp_path / "log", frames=2)
     args = [
@@ -97,7 +102,9 @@ def test_a_trained_equivariant_model_is_equivariant_and_the_cli_records_n(tmp_pa
         for j in (1, 2, 3):
             angle = 2 * math.pi * j / 4
             out = model([torch.from_numpy(rotate64(pts, angle, dtype=np.float64))])
-            assert torch.equal(out.logits.argmax(1), ref.logits.argmax(1))
+            # the trained logits (|l| < 6) move by up to 7e-5 under the same float32 rounding;
+            # classes are compared where the best two logits are more than 5e-4 apart (≥ 98 %)
+            assert_same_classes(out.logits, ref.logits, atol=2.5e-4)
             expect = rotate_xy(ref.offsets.double(), torch.tensor(angle)).float()
             # the point MLP sees float32-rounded rotated coordinates; trained weights amplify that
             # rounding to 1.9e-5 m on ~2 m offsets (random weights stay under 1e-5: test_equivariant.py)

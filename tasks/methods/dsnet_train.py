@@ -49,7 +49,7 @@ class DsnetTrainOptions(TrainOptions):
     stream_sensors: str | None = Field(None, description="--stream: sensors (default: all).")
     stream_workers: int = Field(1, ge=0, description="--stream: background render processes.")
     stream_variety: Literal["base", "wide"] = Field(
-        "base", description="--stream: the street styles' variety (wide: docs/synth_giveaways.md)."
+        "base", description="--stream: the street styles' variety, base or wide."
     )
 
 

@@ -18,6 +18,7 @@ from prefect import flow, get_run_logger
 from flows.request import LabelRequest
 from flows.run_record import check_same_log, new_run_id, record_run, report_run
 from flows.stage_loop import RunState, run_stage
+from storage.errors import StoreError
 from storage.locks import LockSet, Owner
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
@@ -42,15 +43,24 @@ def label(request: LabelRequest, isolate: bool = False) -> list[dict[str, Any]]:
         )
         for stage in state.stages:
             run_stage(store, pipeline, stage, sequences, run, state, force=stage in forced)
-    summary = state.rows()
-    report_run(store, run_id, summary)
-    if "score" in state.stages or pipeline.labels in state.stages:  # report, dashboard, score artifacts
-        from flows.publish import publish
+        summary = state.rows()
+        report_run(store, run_id, summary)
+        if "score" in state.stages or pipeline.labels in state.stages:  # report, dashboard, artifacts
+            _publish(request, pipeline, state.log)  # still under the locks: another run waits
+    return summary
 
+
+def _publish(request: LabelRequest, pipeline: Pipeline, log) -> None:
+    """The report tables, dashboard and artifacts. A store another run is changing (sequences this
+    run did not lock) leaves the report as it was, with a warning: the run's labels are done."""
+    from flows.publish import publish
+
+    try:
         publish(
             request.root, request.dataset_name(), storage_options=request.storage_options, pipeline=pipeline
         )
-    return summary
+    except StoreError as exc:
+        log.warning("the report was not refreshed (%s); `dsnet dashboard %s` rebuilds it", exc, request.root)
 
 
 @contextlib.contextmanager

@@ -79,7 +79,7 @@ class RootFS:
 
     def _not_a_folder(self, blocker: str) -> NotAFolderError:
         if blocker == self.root:
-            return NotAFolderError(blocker, "is a file, not a run store folder: give a folder (new or a run)")
+            return NotAFolderError(blocker, "is a file, not a run folder: give a folder (new or a run)")
         return NotAFolderError(blocker, "is a file where the run store needs a folder: the store is damaged")
 
     def _folder_error(self, exc: OSError, rel: str) -> OSError | NotAFolderError:

@@ -16,6 +16,12 @@ frames from the plan and the frames within ±W of them (windowed reads of the up
 only, never of other blocks' outputs), so blocks run in any order or in parallel, a killed block
 resumes to identical labels, and a frame's labels do not depend on where the blocks split.
 Quarantined frames and frames the temporal stage did not label get no label.
+
+Where the temporal stage reused ids (beyond the 65 535 of a label, :mod:`dsnet_core.temporal.ids`),
+its track table's ``generation`` (the roles of :data:`tasks.track_ids.GENERATION_ROLES`) tells the
+tracks of one id apart: refinement works on track keys, refuses joins that would stretch an id
+over another track holding it (``joins_refused`` in the plan), and ``refine_tracks`` has one row
+per (id, generation).
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from storage.errors import StoreError
 from tasks.align import AlignStage
 from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
 from tasks.infer import InferStage
+from tasks.track_ids import track_generations
 
 PROBS = next(a for a in InferStage.arrays if a.name == "probs")
 """The declaration of per-point class probabilities (uint8 ``q / 255``, per volume)."""
@@ -112,18 +119,20 @@ TRACKS = TableSpec(
     pa.schema(
         [
             ("id", pa.int32()),  # sequence-wide id after joins (the earliest id of a chain)
+            ("generation", pa.int32()),  # which hand-out of the id (the temporal stage's; 0 unless reused)
             ("class_id", pa.int32()),  # train id of all its points (-1: they keep their own)
             ("first_frame", pa.int32()),
             ("last_frame", pa.int32()),
             ("n_frames", pa.int32()),
             ("n_points", pa.int64()),
             ("moving", pa.bool_()),  # moving, or seen too briefly to tell
-            ("joined", pa.list_(pa.int32())),  # the temporal stage's ids it was made of
+            ("joined", pa.list_(pa.int32())),  # the temporal stage's ids it was made of ...
+            ("joined_generation", pa.list_(pa.int32())),  # ... and their generations
             ("confidence", pa.float64()),
         ]
     ),
-    roles=(("id", "id"), ("class_id", "class_id"), ("points", "n_points"), ("item", "first_frame"),
-           ("confidence", "confidence")),
+    roles=(("id", "id"), ("generation", "generation"), ("class_id", "class_id"), ("points", "n_points"),
+           ("item", "first_frame"), ("confidence", "confidence")),
 )  # fmt: skip
 
 
@@ -145,6 +154,7 @@ class FrameLoader:
 
         self.ctx, self.decode, self.label_map = ctx, decode_labels, ctx.label_map
         self.labels = ctx.arrays(labels)
+        self.generations = track_generations(ctx.store, ctx.sequence, ctx.pipeline[labels])
         self.refs = ctx.reader.frames(ctx.sequence)
         t = ctx.frames.to_pydict()
         self.pose = dict(zip(t["index"], t["pose"], strict=True))
@@ -178,7 +188,7 @@ class FrameLoader:
             pose=None if pose is None else np.asarray(pose, np.float64).reshape(4, 4),
             xyz=np.ascontiguousarray(scan[:, :3], np.float32),
             sem=sem,
-            inst=inst,
+            inst=self.generations.keys(inst, index),
             probs=self._probs(index, label.shape[0]),
             intensity=np.ascontiguousarray(scan[:, 3], np.float32) if scan.shape[1] > 3 else None,
         )
@@ -202,7 +212,7 @@ class RefineStage(Stage):
     """Refines the final labels of the temporal stage named ``labels``."""
 
     name = "refine"
-    version = "1"
+    version = "2"  # 2: track keys of reused ids, refine_tracks' generation
     Config = RefineConfig
     item = "frame"
     arrays = (FRAME_LABEL,)
@@ -262,19 +272,25 @@ class RefineStage(Stage):
                 "align": align,
                 "tracks": int(d.ids.size),
                 "joins": len(d.joins),
+                "joins_refused": d.refused,
                 "dissolved": int(d.dissolved.sum()),
                 "static_tracks": int((d.static & ~d.dissolved).sum()),
             },
         )
 
     def _confidence(self, ctx: StageContext) -> dict[int, float] | None:
-        """``{id: confidence}`` from the labels stage's tables that declare both roles (mean per id)."""
+        """``{track key: confidence}`` from the labels stage's tables that declare both roles (mean per
+        id, or per (id, generation) where the table declares a ``generation``)."""
+        from dsnet_core.temporal.ids import track_key
+
         for spec in ctx.pipeline[self.labels].tables:
-            id_col, conf_col = spec.role("id"), spec.role("confidence")
+            id_col, conf_col, gen_col = spec.role("id"), spec.role("confidence"), spec.role("generation")
             if id_col is None or conf_col is None:
                 continue
             t = ctx.table(self.labels, spec.name)
             ids = np.asarray(t[id_col].to_numpy(zero_copy_only=False), np.int64)
+            if gen_col is not None:
+                ids = track_key(ids, np.asarray(t[gen_col].to_numpy(zero_copy_only=False), np.int64))
             conf = np.asarray(t[conf_col].to_numpy(zero_copy_only=False), np.float64)
             ok = np.isfinite(conf)
             uniq, inv = np.unique(ids[ok], return_inverse=True)

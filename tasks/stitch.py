@@ -4,8 +4,14 @@ Reads ``fuse`` (per volume: train ids, raw instance ids, instance confidences) a
 (each point's source frame and source index) and streams the volumes of a sequence through
 :class:`dsnet_core.temporal.stitching.Stitcher`: on the frames two consecutive volumes share, the new
 volume's raw ids inherit the tracked ids they overlap with point IoU > 0.5 (one-to-one); every
-other raw id takes a fresh id from one counter per sequence (never reused). For k = 1 volumes
-share no frame, so this is exactly "hand out sequence-wide ids from one counter".
+other raw id takes a fresh id from one counter per sequence. For k = 1 volumes share no frame, so
+this is exactly "hand out sequence-wide ids from one counter".
+
+A label holds 65 535 ids. A sequence that needs more (the bundled model opens ~60 per frame, so
+beyond ~1 100 frames) reuses ids: an id unused for more than ``id_reuse_after`` frames, least
+recently used first (:mod:`dsnet_core.temporal.ids`), with a warning once per sequence and the
+number of reused ids in the manifest's counts (``ids_reused``). The ``tracks`` table then has one
+row per hand-out of an id (``generation`` 0, 1, ...; their frames never overlap).
 
 **Ownership rule: a frame's label comes from the first volume (in sequence order) that
 contains it**; later volumes only use their predictions on that frame to match ids. It is
@@ -14,9 +20,9 @@ written once and never changes.
 Output per frame (item = frame, the ingest frame table's ``index``): ``label`` uint32 in the
 ORIGINAL point order of the frame's scan (points put back through align's ``source_frame`` /
 ``source_index``), ``learning_map_inv[train id] | id << 16`` in the model's label map;
-quarantined frames get no label (``done`` stays 0). Table ``tracks``: one row per id (class,
-first/last frame, points per frame, confidence = point-weighted mean of fuse's instance
-confidence, lowest linking IoU).
+quarantined frames get no label (``done`` stays 0). Table ``tracks``: one row per track (id,
+generation, class, first/last frame, points per frame, confidence = point-weighted mean of fuse's
+instance confidence, lowest linking IoU).
 
 Stitching is sequential, so a sequence is one block. It is resumable inside the block: after
 each volume's frames are written, the stitcher's state is saved as the stage's state
@@ -36,10 +42,13 @@ from collections.abc import Iterator
 
 import numpy as np
 import pyarrow as pa
+from pydantic import Field
 
+from dsnet_core.temporal.ids import REUSE_AFTER
 from storage.contract import TableSpec
 from tasks.align import sequential_frames_plan
 from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext, StateThrottle
+from tasks.track_ids import warn_reuse
 
 log = logging.getLogger(__name__)
 
@@ -49,9 +58,12 @@ class StitchConfig(StageConfig):
 
     Attributes:
         min_iou: a tracked id carries over when the point IoU on the shared frames is above this.
+        id_reuse_after: once the 65 535 ids of a label are used up, an id is handed out again only
+            after this many frames without it (keep it above refine's ``join_gap``).
     """
 
     min_iou: float = 0.5
+    id_reuse_after: int = Field(REUSE_AFTER, ge=1)
 
 
 TRACKS = TableSpec(
@@ -59,6 +71,7 @@ TRACKS = TableSpec(
     pa.schema(
         [
             ("id", pa.int32()),  # sequence-wide instance id (upper 16 bits of the label)
+            ("generation", pa.int32()),  # which hand-out of the id (0; 1, 2, ... once ids are reused)
             ("class_id", pa.int32()),  # majority train id over the track's points
             ("raw_class", pa.int32()),  # the same through learning_map_inv
             ("first_frame", pa.int32()),  # frame indices (the ingest frame table's ``index``)
@@ -73,6 +86,7 @@ TRACKS = TableSpec(
     ),
     roles=(
         ("id", "id"),
+        ("generation", "generation"),
         ("class_id", "class_id"),
         ("points", "n_points"),
         ("item", "first_frame"),
@@ -84,7 +98,7 @@ TRACKS = TableSpec(
 class StitchStage(Stage):
     name = "stitch"
     upstream = ("fuse", "align")
-    version = "1"
+    version = "2"  # 2: ids reused beyond 65 535, the tracks table's generation
     Config = StitchConfig
     item = "frame"
     arrays = (FRAME_LABEL,)
@@ -110,11 +124,12 @@ class StitchStage(Stage):
         out = ctx.arrays(self.name)
         stitcher, start = self._resume(ctx, fingerprint, windows, out.done(), label_map)
         if stitcher is None:
-            stitcher = Stitcher(label_map, min_iou=ctx.config.min_iou)
+            stitcher = Stitcher(label_map, min_iou=ctx.config.min_iou, reuse_after=ctx.config.id_reuse_after)
         else:
             log.info("stitch %s resumes after volume %d from its saved state", ctx.sequence, start - 1)
         scores = self._scores(ctx)
         throttle = StateThrottle()
+        warned = False
         align = ctx.arrays("align")
         fuse = ctx.arrays("fuse")
         for v in range(start, len(windows)):
@@ -131,20 +146,22 @@ class StitchStage(Stage):
                 scores=scores.get(v),
             )
             finished = stitcher.add_volume(volume)
+            warned = warn_reuse(ctx.sequence, self.name, stitcher.ids, int(w[0]), warned)
             for j, ff in enumerate(finished):
                 f = int(absolute[ff.frame])
                 if f not in todo:  # written (and counted) by an interrupted run of this block
                     continue
-                rows = {}
+                rows, counts = {}, {}
                 if v == len(windows) - 1 and j == len(finished) - 1:
                     rows = {"tracks": self._track_rows(stitcher, label_map, absolute)}
+                    counts = {"tracks": len(rows["tracks"]), "ids_reused": stitcher.ids.reused}
                 n = int(ff.label.shape[0])
                 yield ItemResult(
                     f,
                     arrays={"label": ff.label},
                     n_points=n,
                     rows=rows,
-                    counts={"frames": 1, "points": n, "tracks": len(rows.get("tracks", []))},
+                    counts={"frames": 1, "points": n, "tracks": 0, "ids_reused": 0} | counts,
                 )
             # runs once the runner has written every frame of this volume (done flags set)
             if v < len(windows) - 1 and throttle.due():

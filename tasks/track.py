@@ -7,10 +7,13 @@ restricted to that frame's points. Their centroids, taken into the world frame w
 reference pose, go through :class:`dsnet_core.temporal.tracking.Tracker`: greedy association to
 the live tracks displaced by their constant velocity, gated by distance and by the label map's
 track groups, a birth for every unmatched instance and a maximum age for unseen tracks; ids from
-one counter per sequence.
+one counter per sequence. Beyond the 65 535 ids of a label, ids no track has held for more than
+``id_reuse_after`` frames are reused, as in ``stitch`` (a warning once per sequence, ``ids_reused``
+in the manifest's counts).
 
 Output as ``stitch``: per frame ``label`` uint32 in the scan's ORIGINAL point order (raw semantic |
-id << 16 in the model's label map); quarantined frames get none. Table ``tracked``: one row per id.
+id << 16 in the model's label map); quarantined frames get none. Table ``tracked``: one row per
+track (per hand-out of an id: ``generation``).
 
 Tracking is sequential: a sequence is one block, resumable inside it. After each frame is
 written the tracker's state is saved as the stage's state (tagged with the fingerprint and the
@@ -26,9 +29,11 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
+from dsnet_core.temporal.ids import REUSE_AFTER, key_generation, key_id
 from storage.contract import TableSpec
 from tasks.align import sequential_frames_plan
 from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext, StateThrottle
+from tasks.track_ids import warn_reuse
 
 log = logging.getLogger(__name__)
 
@@ -40,11 +45,14 @@ class TrackConfig(StageConfig):
         max_distance: association gate between a track's predicted and an instance's centroid, m.
         max_age: frames a track may go unseen and still be matched.
         constant_velocity: predict a track's position with its last velocity.
+        id_reuse_after: once the 65 535 ids of a label are used up, an id is handed out again only
+            after this many frames without a track holding it (keep it above refine's ``join_gap``).
     """
 
     max_distance: float = Field(2.0, gt=0)
     max_age: int = Field(2, ge=0)
     constant_velocity: bool = True
+    id_reuse_after: int = Field(REUSE_AFTER, ge=1)
 
 
 TRACKED = TableSpec(
@@ -52,6 +60,7 @@ TRACKED = TableSpec(
     pa.schema(
         [
             ("id", pa.int32()),  # sequence-wide instance id (upper 16 bits of the label)
+            ("generation", pa.int32()),  # which hand-out of the id (0; 1, 2, ... once ids are reused)
             ("class_id", pa.int32()),  # train id of the track's first sighting
             ("raw_class", pa.int32()),  # the same through learning_map_inv
             ("first_frame", pa.int32()),  # frame indices (the ingest frame table's ``index``)
@@ -62,8 +71,9 @@ TRACKED = TableSpec(
             ("frame_points", pa.list_(pa.int64())),  # its points in each of those frames
         ]
     ),
-    roles=(("id", "id"), ("class_id", "class_id"), ("points", "n_points"), ("item", "first_frame")),
-)
+    roles=(("id", "id"), ("generation", "generation"), ("class_id", "class_id"), ("points", "n_points"),
+           ("item", "first_frame")),
+)  # fmt: skip
 
 
 INSTANCE_ARRAYS = ("sem", "inst")
@@ -79,7 +89,7 @@ class TrackStage(Stage):
     :data:`DETECTIONS` table, by its detections' centres and learned velocities (MOST)."""
 
     name = "track"
-    version = "1"
+    version = "2"  # 2: ids reused beyond 65 535, the tracked table's generation
     Config = TrackConfig
     item = "frame"
     arrays = (FRAME_LABEL,)
@@ -117,7 +127,14 @@ class TrackStage(Stage):
         fingerprint = ctx.manifest(self.name).fingerprint
         tracker, start, summary = self._resume(ctx, fingerprint, order, label_map)
         if tracker is None:
-            tracker = Tracker(label_map, **ctx.config.model_dump())
+            c = ctx.config
+            tracker = Tracker(
+                label_map,
+                max_distance=c.max_distance,
+                max_age=c.max_age,
+                constant_velocity=c.constant_velocity,
+                reuse_after=c.id_reuse_after,
+            )
         else:
             log.info("track %s resumes after frame %d from its saved state", ctx.sequence, order[start - 1])
         align, instances = ctx.arrays("align"), ctx.arrays(self.source)
@@ -125,6 +142,7 @@ class TrackStage(Stage):
         detections = _detections(ctx, self.source) if has_detections else None
         cached: tuple[int, dict, dict] | None = None
         throttle = StateThrottle()
+        warned = False
         for k in range(start, len(order)):
             f = order[k]
             v = owner[f]
@@ -149,18 +167,22 @@ class TrackStage(Stage):
             else:  # MOST: modal centres with learned velocities (m/s: frames without stamps at 10 Hz)
                 ids, cent, cls, vel = _frame_detections(detections, v, inst)
                 tid = tracker.add_detections(cent, cls, world, time if time is not None else 0.1 * f, vel)
+            warned = warn_reuse(ctx.sequence, self.name, tracker.ids, f, warned)
             label = np.zeros(int(frame_points[f]), np.uint32)
             label[vol["source_index"][sel]] = relabel(label_map, sem, inst, ids, tid, thing)
             _summarise(summary, f, label, tid, cls)
             if f in todo:
-                rows = {"tracked": _track_rows(summary, label_map)} if k == len(order) - 1 else {}
+                rows, counts = {}, {}
+                if k == len(order) - 1:
+                    rows = {"tracked": _track_rows(summary, label_map)}
+                    counts = {"tracks": len(rows["tracked"]), "ids_reused": tracker.ids.reused}
                 n = int(label.shape[0])
                 yield ItemResult(
                     f,
                     arrays={"label": label},
                     n_points=n,
                     rows=rows,
-                    counts={"frames": 1, "points": n, "tracks": len(rows.get("tracked", []))},
+                    counts={"frames": 1, "points": n, "tracks": 0, "ids_reused": 0} | counts,
                 )
             if k < len(order) - 1 and throttle.due():
                 with throttle:
@@ -220,25 +242,27 @@ def _ref_frames(ctx: StageContext) -> dict[int, int]:
 
 
 def _summarise(summary: dict, frame: int, label: np.ndarray, tid: np.ndarray, cls: np.ndarray) -> None:
-    """Add one frame's tracked instances to ``summary`` (id → JSON-able row parts)."""
+    """Add one frame's tracked instances to ``summary`` (track key → JSON-able row parts)."""
     ids, counts = np.unique(label >> 16, return_counts=True)
     points = {int(i): int(c) for i, c in zip(ids.tolist(), counts.tolist(), strict=True) if i}
     for t, c in zip(tid.tolist(), cls.tolist(), strict=True):
-        if points.get(int(t), 0) == 0:
+        n = points.get(int(key_id(t)), 0)
+        if n == 0:
             continue
         row = summary.setdefault(int(t), {"class_id": int(c), "frames": [], "frame_points": []})
         row["frames"].append(int(frame))
-        row["frame_points"].append(points[int(t)])
+        row["frame_points"].append(n)
 
 
 def _track_rows(summary: dict, label_map) -> list[dict]:
-    """The ``tracked`` table's rows, one per id."""
+    """The ``tracked`` table's rows, one per track (hand-out of an id), sorted by (id, generation)."""
     rows = []
-    for tid in sorted(summary):
-        r = summary[tid]
+    for key in sorted(summary, key=lambda t: (key_id(t), t)):
+        r = summary[key]
         rows.append(
             {
-                "id": tid,
+                "id": key_id(key),
+                "generation": key_generation(key),
                 "class_id": r["class_id"],
                 "raw_class": int(label_map.to_raw(np.asarray([r["class_id"]]))[0]),
                 "first_frame": min(r["frames"]),

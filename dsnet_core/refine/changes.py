@@ -70,11 +70,12 @@ def frame_change(
     tracks_dissolved: int = 0,
 ) -> FrameChange:
     """The change record of one frame from its (class, id) arrays ``(N,)`` before and after and the
-    ``(N,) bool`` masks of the points each step changed."""
+    ``(N,) bool`` masks of the points each step changed. Ids may be track keys: the label's id is
+    their lower 16 bits (:mod:`dsnet_core.temporal.ids`), and only a change of it counts."""
     sem0, inst0 = before
     sem1, inst1 = after
     cls = sem0 != sem1
-    ids = inst0 != inst1
+    ids = (np.asarray(inst0) & 0xFFFF) != (np.asarray(inst1) & 0xFFFF)
     pairs = sem0[cls].astype(np.int64) * 65536 + sem1[cls].astype(np.int64)
     uniq, counts = np.unique(pairs, return_counts=True)
     transitions = {(int(p >> 16), int(p & 0xFFFF)): int(c) for p, c in zip(uniq, counts, strict=True)}

@@ -16,9 +16,10 @@ import numpy as np
 from dsnet_core.refine.classes import ClassSets
 from dsnet_core.refine.frame import Confidence
 from dsnet_core.refine.history import TrackSummary
-from dsnet_core.refine.joining import Join, chain_heads, join_tracks
+from dsnet_core.refine.joining import Join, chain_heads, join_tracks, keep_ids_apart
 from dsnet_core.refine.motion import is_static
 from dsnet_core.refine.params import TrackParams
+from dsnet_core.temporal.ids import key_generation, key_id
 
 _COLUMNS = ("ids", "final_id", "class_id", "static", "dissolved", "confidence", "first", "last", "n_frames",
             "n_points")  # fmt: skip
@@ -26,11 +27,12 @@ _COLUMNS = ("ids", "final_id", "class_id", "static", "dissolved", "confidence", 
 
 @dataclass(frozen=True)
 class TrackDecisions:
-    """What happens to each original track id (arrays ``(T,)`` over ``ids``).
+    """What happens to each original track (arrays ``(T,)`` over ``ids``).
 
     Attributes:
-        ids: original ids, sorted (int64).
-        final_id: the id its points get: the earliest id of its chain of joins; 0 when dissolved.
+        ids: the original tracks' keys ``id | generation << 16`` (the ids, until a temporal stage
+            reused ids), sorted (int64).
+        final_id: the key its points get: the earliest key of its chain of joins; 0 when dissolved.
         class_id: the train id all its points take (its joined track's vote; for a dissolved
             track its strongest stuff class); -1: its points keep their own classes (a track
             without any thing vote that does not dissolve).
@@ -40,6 +42,7 @@ class TrackDecisions:
         confidence: its confidence in [0, 1] (the temporal stage's, else its vote's thing share).
         first, last, n_frames, n_points: its sightings before the joins.
         joins: the joins made.
+        refused: joins refused because they would have stretched a reused id over another track.
     """
 
     ids: np.ndarray
@@ -53,6 +56,7 @@ class TrackDecisions:
     n_frames: np.ndarray
     n_points: np.ndarray
     joins: tuple[Join, ...] = field(default_factory=tuple)
+    refused: int = 0
 
     def lookup(self, inst: np.ndarray) -> np.ndarray:
         """``(N,) int64``: the row of each point's id in this table, -1 for 0 and unknown ids."""
@@ -77,6 +81,7 @@ class TrackDecisions:
         """A JSON-able form (lists of numbers)."""
         out: dict[str, Any] = {k: getattr(self, k).tolist() for k in _COLUMNS}
         out["joins"] = [[j.earlier, j.later, j.gap, round(j.distance, 6)] for j in self.joins]
+        out["refused"] = self.refused
         return out
 
     @classmethod
@@ -84,7 +89,17 @@ class TrackDecisions:
         kinds = {"static": bool, "dissolved": bool, "confidence": np.float64}
         cols = {k: np.asarray(d[k], kinds.get(k, np.int64)) for k in _COLUMNS}
         joins = tuple(Join(int(a), int(b), int(g), float(x)) for a, b, g, x in d.get("joins", []))
-        return cls(**cols, joins=joins)
+        return cls(**cols, joins=joins, refused=int(d.get("refused", 0)))
+
+
+def _groups(labels: np.ndarray, keep: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """The rows of ``keep`` grouped by their label, as ``np.unique(labels[keep])`` orders them, each
+    group's rows ascending (what ``np.flatnonzero((labels == l) & keep)`` gives, in one sort)."""
+    rows = np.flatnonzero(keep)
+    if rows.size == 0:
+        return []
+    rows = rows[np.argsort(labels[rows], kind="stable")]
+    return [(int(labels[g[0]]), g) for g in np.split(rows, np.flatnonzero(np.diff(labels[rows])) + 1)]
 
 
 def _masked_argmax(votes: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -106,7 +121,7 @@ def decide_tracks(
         s: the sequence's tracks.
         sets: the label map's class sets.
         params: the track settings.
-        confidence: ``{id: confidence}`` from the temporal stage, where it has one.
+        confidence: ``{track key: confidence}`` from the temporal stage, where it has one.
         world: poses are known; without them tracks are neither joined nor judged static.
     """
     votes = np.where(sets.ignore[None, :], 0, s.votes)
@@ -130,12 +145,12 @@ def decide_tracks(
         if world
         else []
     )
+    joins, refused = keep_ids_apart(s, joins, ~dissolved)
     heads = chain_heads(s.ids, joins)
     final_id = np.where(dissolved, 0, heads)
     class_id = np.where(dissolved, stuff_class, -1)
     static = dissolved.copy()
-    for head in np.unique(heads[~dissolved]):
-        members = np.flatnonzero((heads == head) & ~dissolved)
+    for _, members in _groups(heads, ~dissolved):
         merged = votes[members].sum(axis=0)
         if merged[sets.thing].sum() > 0:
             class_id[members] = int(_masked_argmax(merged[None, :], sets.thing)[0])
@@ -158,27 +173,32 @@ def decide_tracks(
         n_frames=n_frames.astype(np.int64),
         n_points=s.n_points.astype(np.int64),
         joins=tuple(joins),
+        refused=refused,
     )
 
 
 def track_rows(d: TrackDecisions) -> list[dict[str, Any]]:
-    """One row per track after refinement (joined tracks as one; dissolved tracks omitted): id,
-    class_id (-1: mixed), first/last frame, n_frames, n_points, moving, joined (its original ids),
+    """One row per track after refinement (joined tracks as one; dissolved tracks omitted), sorted
+    by (id, generation): id and generation (its earliest track's), class_id (-1: mixed), first/last
+    frame, n_frames, n_points, moving, joined and joined_generation (its original tracks),
     confidence (point-weighted mean)."""
     rows = []
-    for head in np.unique(d.final_id[d.final_id > 0]).tolist():
-        m = np.flatnonzero(d.final_id == head)
+    groups = dict(_groups(d.final_id, d.final_id > 0))
+    for head in sorted(groups, key=lambda k: (key_id(k), k)):
+        m = groups[head]
         pts = d.n_points[m]
         rows.append(
             {
-                "id": int(head),
+                "id": int(key_id(head)),
+                "generation": int(key_generation(head)),
                 "class_id": int(d.class_id[m[0]]),
                 "first_frame": int(d.first[m].min()),
                 "last_frame": int(d.last[m].max()),
                 "n_frames": int(d.n_frames[m].sum()),
                 "n_points": int(pts.sum()),
                 "moving": not bool(d.static[m[0]]),
-                "joined": d.ids[m].tolist(),
+                "joined": key_id(d.ids[m]).tolist(),
+                "joined_generation": key_generation(d.ids[m]).tolist(),
                 "confidence": float((d.confidence[m] * pts).sum() / max(int(pts.sum()), 1)),
             }
         )

@@ -32,7 +32,8 @@ class FrameInput:
         pose: ``(4, 4) float64`` sensor -> world, or None (no poses: nothing in the world frame).
         xyz: ``(N, 3) float32`` points in the sensor frame, metres, in the labels' order.
         sem: ``(N,) int64`` train ids.
-        inst: ``(N,) int64`` sequence-wide instance (track) ids, 0 = none.
+        inst: ``(N,) int64`` sequence-wide tracks, 0 = none: their keys ``id | generation << 16``
+            (:mod:`dsnet_core.temporal.ids`), the label's ids unless the temporal stage reused ids.
         probs: ``(N, C) uint8`` class probabilities quantised as ``p = q / 255``, or None (hard
             labels only).
         intensity: ``(N,) float32`` remission (0-1) for the ground segmentation, or None.
@@ -92,9 +93,10 @@ def decode_labels(label: np.ndarray, label_map: LabelMap) -> tuple[np.ndarray, n
 
 
 def encode_labels(sem: np.ndarray, inst: np.ndarray, label_map: LabelMap) -> np.ndarray:
-    """Train ids and ids ``(N,)`` -> ``raw semantic | id << 16`` ``(N,) uint32``."""
+    """Train ids and ids (or track keys: their lower 16 bits are the id) ``(N,)`` -> ``raw semantic |
+    id << 16`` ``(N,) uint32``."""
     raw = label_map.inv_lut()[np.asarray(sem, np.int64)]
-    return raw | (np.asarray(inst, np.uint32) << np.uint32(16))
+    return raw | ((np.asarray(inst, np.int64) & 0xFFFF).astype(np.uint32) << np.uint32(16))
 
 
 def quantise(x: np.ndarray) -> np.ndarray:

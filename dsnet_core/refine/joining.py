@@ -2,7 +2,11 @@
 later are the same object when each one's position, extrapolated across the gap with its own
 velocity (forwards from the end of the first, backwards from the start of the second), lands near
 the other's observed centre. Pairs are chosen one-to-one (an optimal assignment), only within a
-class group; a chain of joined tracks keeps the id of its earliest track."""
+class group; a chain of joined tracks keeps the id of its earliest track.
+
+Tracks are named by their keys ``id | generation << 16`` (:mod:`dsnet_core.temporal.ids`): once a
+temporal stage has reused ids, one id names several tracks at different times, and a join that
+would stretch an id over frames where another track holds it is refused (:func:`keep_ids_apart`)."""
 
 from __future__ import annotations
 
@@ -13,6 +17,7 @@ from scipy.optimize import linear_sum_assignment
 
 from dsnet_core.refine.history import TrackSummary
 from dsnet_core.refine.motion import fit_velocity
+from dsnet_core.temporal.ids import key_generation, key_id
 
 
 @dataclass(frozen=True)
@@ -100,30 +105,56 @@ def join_tracks(
         if cand.size == 0:
             continue
         cost = _costs(tuple(x[a] for x in ends), tuple(x[cand] for x in starts))
-        pairs += [(int(a), int(b), float(c)) for b, c in zip(cand, cost, strict=True) if c <= max_distance]
+        ok = cost <= max_distance
+        pairs += [(int(a), int(b), float(c)) for b, c in zip(cand[ok], cost[ok], strict=True)]
     if not pairs:
         return []
+    joins = [
+        Join(int(s.ids[a]), int(s.ids[b]), int(first[b] - last[a] - 1), c)
+        for a, b, c in _assign(pairs, max_distance)
+    ]
+    id_first = dict(zip(s.ids.tolist(), first.tolist(), strict=True))
+    return sorted(joins, key=lambda j: (id_first[j.later], j.later))
+
+
+def _assign(pairs: list[tuple[int, int, float]], max_distance: float) -> list[tuple[int, int, float]]:
+    """The one-to-one choice of least total cost among candidate ``(earlier, later, cost)`` pairs.
+
+    The candidates form a sparse bipartite graph: each connected group of tracks is assigned on
+    its own (the optimum of a block-diagonal problem is its blocks' optima), so memory and time
+    follow the largest group, not the number of tracks in the sequence squared.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     rows = sorted({p[0] for p in pairs})
     cols = sorted({p[1] for p in pairs})
     ri = {a: i for i, a in enumerate(rows)}
     ci = {b: j for j, b in enumerate(cols)}
-    big = 1e6 * (1.0 + max_distance)
-    cost = np.full((len(rows), len(cols)), big)
+    n = len(rows) + len(cols)
+    edges = coo_matrix(
+        (np.ones(len(pairs)), ([ri[a] for a, _, _ in pairs], [len(rows) + ci[b] for _, b, _ in pairs])),
+        shape=(n, n),
+    )
+    _, component = connected_components(edges, directed=False)
+    groups: dict[int, list[tuple[int, int, float]]] = {}
     for a, b, c in pairs:
-        cost[ri[a], ci[b]] = c
-    r, c = linear_sum_assignment(cost)
-    joins = [
-        Join(
-            int(s.ids[rows[i]]),
-            int(s.ids[cols[j]]),
-            int(first[cols[j]] - last[rows[i]] - 1),
-            float(cost[i, j]),
-        )
-        for i, j in zip(r.tolist(), c.tolist(), strict=True)
-        if cost[i, j] < big
-    ]
-    id_first = dict(zip(s.ids.tolist(), first.tolist(), strict=True))
-    return sorted(joins, key=lambda j: (id_first[j.later], j.later))
+        groups.setdefault(int(component[ri[a]]), []).append((a, b, c))
+    big = 1e6 * (1.0 + max_distance)
+    out = []
+    for group in groups.values():
+        g_rows = sorted({p[0] for p in group})
+        g_cols = sorted({p[1] for p in group})
+        gi = {a: i for i, a in enumerate(g_rows)}
+        gj = {b: j for j, b in enumerate(g_cols)}
+        cost = np.full((len(g_rows), len(g_cols)), big)
+        for a, b, c in group:
+            cost[gi[a], gj[b]] = c
+        r, c = linear_sum_assignment(cost)
+        out += [
+            (g_rows[i], g_cols[j], float(cost[i, j])) for i, j in zip(r, c, strict=True) if cost[i, j] < big
+        ]
+    return out
 
 
 def chain_heads(ids: np.ndarray, joins: list[Join]) -> np.ndarray:
@@ -135,3 +166,48 @@ def chain_heads(ids: np.ndarray, joins: list[Join]) -> np.ndarray:
             i = prev[i]
         out[k] = i
     return out
+
+
+def keep_ids_apart(s: TrackSummary, joins: list[Join], keeps_id: np.ndarray) -> tuple[list[Join], int]:
+    """The joins that keep every label id on one track at a time, and how many were refused.
+
+    A chain of joins labels all its tracks with its earliest track's id, from that track's first
+    frame to its last track's last frame. Where ids were reused, another track may hold the same id
+    in that span; a join that would stretch the chain over it is refused (the later track keeps
+    its own id). Without reused ids (every key's generation 0) nothing is refused.
+
+    Args:
+        s: the tracks (keys in ``s.ids``).
+        joins: candidate joins, sorted by the later track's first frame (:func:`join_tracks`).
+        keeps_id: ``(T,) bool`` tracks whose points keep an id (not dissolved).
+    """
+    if not joins or not (key_generation(s.ids) > 0).any():
+        return joins, 0
+    row = {int(k): i for i, k in enumerate(s.ids.tolist())}
+    first, last, label_id = s.first, s.last, key_id(s.ids)
+    prev: dict[int, int] = {}  # later -> earlier, kept joins
+    members: dict[int, set[int]] = {}  # chain head -> its tracks
+    end: dict[int, int] = {}  # chain head -> its last frame
+    kept, refused = [], 0
+    for j in joins:
+        head = j.earlier
+        while head in prev:
+            head = prev[head]
+        h, b = row[head], row[j.later]
+        chain = members.get(head, {head})
+        span_end = max(end.get(head, int(last[h])), int(last[b]))
+        others = np.flatnonzero((label_id == label_id[h]) & keeps_id)
+        clash = [
+            o
+            for o in others.tolist()
+            if int(s.ids[o]) not in chain and int(s.ids[o]) != j.later
+            and first[o] <= span_end and last[o] >= first[h]
+        ]  # fmt: skip
+        if clash:
+            refused += 1
+            continue
+        kept.append(j)
+        prev[j.later] = j.earlier
+        members[head] = chain | {j.later}
+        end[head] = span_end
+    return kept, refused

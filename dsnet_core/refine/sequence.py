@@ -29,6 +29,7 @@ from dsnet_core.refine.ground import GroundSegmenter, ground_correction
 from dsnet_core.refine.history import TrackHistory, frame_tracks
 from dsnet_core.refine.params import RefineParams
 from dsnet_core.refine.voxels import FrameVotes, VoxelGrid, frame_votes, window_consensus
+from dsnet_core.temporal.ids import key_id
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,8 @@ def plan_refinement(
         frames: the sequence's refinable frames (any order; read once, not kept).
         sets: the label map's class sets.
         params: the settings.
-        confidence: ``{track id: confidence}`` from the temporal stage, where it has one.
+        confidence: ``{track key: confidence}`` from the temporal stage, where it has one (keys
+            ``id | generation << 16`` as in the frames' ``inst``).
     """
     conf = Confidence.from_mapping(confidence)
     history = TrackHistory(sets.num_classes)
@@ -138,7 +140,7 @@ def apply_tracks(
     cls = d.gather("class_id", row, -1)
     sem[cls >= 0] = cls[cls >= 0]
     static = d.gather("static", row, False)
-    return sem, inst, static, (sem != frame.sem) | (inst != frame.inst)
+    return sem, inst, static, (sem != frame.sem) | (key_id(inst) != key_id(frame.inst))
 
 
 def _voters(sem: np.ndarray, inst: np.ndarray, static: np.ndarray, sets: ClassSets) -> np.ndarray:
@@ -184,6 +186,9 @@ def refine_block(
     voting = params.vote.enabled and plan.world
     needed = [f for f in plan.frames if todo[0] - w <= f <= todo[-1] + w] if voting else todo
     grid = VoxelGrid(params.vote.voxel, plan.origin)
+    d = plan.decisions
+    later = d.lookup(np.asarray([j.later for j in d.joins], np.int64))
+    joins_at = dict(zip(*np.unique(d.first[later], return_counts=True), strict=True)) if d.joins else {}
     votes: deque[FrameVotes] = deque()
     pending: deque[_Pending] = deque()
     wanted = set(todo)
@@ -210,7 +215,7 @@ def refine_block(
         while pending and (last or pending[0].frame.index + w <= g):
             p = pending.popleft()
             window = [v for v in votes if abs(v.index - p.frame.index) <= w]
-            yield _finish(p, window, plan, sets, params, ground)
+            yield _finish(p, window, plan, sets, params, ground, int(joins_at.get(p.frame.index, 0)))
             keep_from = (pending[0].frame.index if pending else g + 1) - w
             while votes and votes[0].index < keep_from:
                 votes.popleft()
@@ -223,8 +228,10 @@ def _finish(
     sets: ClassSets,
     params: RefineParams,
     ground: GroundSegmenter | None,
+    joined: int,
 ) -> RefinedFrame:
-    """Static vote (and ground prior) on one pending frame, and its change record."""
+    """Static vote (and ground prior) on one pending frame, and its change record (``joined``: joins
+    whose later track starts in the frame)."""
     frame, sem, inst = p.frame, p.sem.copy(), p.inst
     by_static = np.zeros(sem.size, bool)
     if p.takers.size:
@@ -243,7 +250,6 @@ def _finish(
             sem, inst, frame.probs, verdict, sets, params.ground.max_confidence, frozen=by_static
         )
     d = plan.decisions
-    joined = sum(1 for j in d.joins if d.first[d.lookup(np.asarray([j.later]))[0]] == frame.index)
     row = d.lookup(frame.inst)
     dissolved = np.unique(frame.inst[d.gather("dissolved", row, False)]).size
     change = frame_change(

@@ -5,8 +5,12 @@ Consecutive volumes overlap in at least one frame. On the overlap frames the pre
 volume's *tracked* ids are matched with the new volume's raw ids by point IoU over thing
 points; a pair with IoU > ``min_iou`` (0.5, strict) is the same object and the raw id inherits
 the tracked id. The assignment is one-to-one (Hungarian on IoU, then the threshold). Every
-other raw id gets a fresh id from one counter per sequence, so an id is never reused, not even
-after its object has left (the reference code restarts from the previous frame's maximum).
+other raw id gets a fresh id from one counter per sequence (the reference code restarts from the
+previous frame's maximum), so an id is not reused after its object has left until the 65 535 ids
+of a label are exhausted; then an id unused for more than ``reuse_after`` frames is handed out
+again (:class:`~dsnet_core.temporal.ids.IdPool`; never one still carried). Inside the stitcher a
+track is named by its key ``id | generation << 16`` (:mod:`dsnet_core.temporal.ids`); its labels
+carry the id.
 
 Ownership rule: **a frame is owned by the first volume that contains it.** Its final label is
 written once, when that volume is stitched, and never changes. Reasons: (1) streaming — a
@@ -22,10 +26,8 @@ Overlap 0 (k = 1, the 3D pipeline) is allowed: nothing matches, so ids are per-f
 
 from __future__ import annotations
 
-import base64
 import logging
 import math
-import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -34,15 +36,17 @@ from scipy.optimize import linear_sum_assignment
 
 from dsnet_core.errors import DsnetError
 from dsnet_core.labels import LabelMap, load_label_map
+from dsnet_core.temporal.ids import REUSE_AFTER, IdPool, key_generation, key_id
+from dsnet_core.temporal.ids import pack as _pack
+from dsnet_core.temporal.ids import unpack as _unpack
 
 log = logging.getLogger(__name__)
 
-MAX_ID = 0xFFFF  # instance ids live in the upper 16 bits of a SemanticKITTI label
-STATE_VERSION = 2  # 1: carry as JSON lists (still read)
+STATE_VERSION = 3  # 2: no id pool (ids never reused)
 
 
 class StitchError(DsnetError):
-    """Volumes that cannot be stitched (out of order, inconsistent arrays, id space exhausted)."""
+    """Volumes that cannot be stitched (out of order, inconsistent arrays)."""
 
 
 @dataclass(frozen=True)
@@ -82,20 +86,25 @@ class FinishedFrame:
 
 @dataclass(frozen=True)
 class TrackTable:
-    """Per-track summary (one row per id with written points) and a long points-per-frame table.
+    """Per-track summary (one row per track with written points) and a long points-per-frame table.
+
+    A track is one hand-out of an id: once ids are reused (:mod:`dsnet_core.temporal.ids`) an id
+    has several rows, told apart by ``generation`` and by their frames (which never overlap).
 
     Attributes:
-        id, semantic, first_frame, last_frame, n_points, n_frames: ``(T,) int64``; ``semantic``
-            is the majority train id over the track's written points (ties: lowest id).
+        id, generation, semantic, first_frame, last_frame, n_points, n_frames: ``(T,) int64``,
+            rows sorted by (id, generation); ``semantic`` is the majority train id over the
+            track's written points (ties: lowest id).
         confidence: ``(T,) float64`` point-weighted mean of the volumes' instance scores (NaN
             when no scores were given).
         min_link_iou: ``(T,) float64`` lowest IoU that carried the id into a later volume (NaN
             when the id never crossed a volume boundary).
-        frame_track, frame_index, frame_points: ``(R,) int64`` long table: points of a track in
-            a frame.
+        frame_track, frame_index, frame_points: ``(R,) int64`` long table: points of a track
+            (its key ``id | generation << 16``) in a frame.
     """
 
     id: np.ndarray
+    generation: np.ndarray
     semantic: np.ndarray
     first_frame: np.ndarray
     last_frame: np.ndarray
@@ -110,7 +119,8 @@ class TrackTable:
     def columns(self, label_map: LabelMap) -> dict[str, list]:
         """The columns of the store's ``tracks`` table: one row per track, per-frame counts as
         lists (``frames``, ``frame_points``) and ``raw_class`` through ``learning_map_inv``."""
-        per: dict[int, tuple[list[int], list[int]]] = {int(t): ([], []) for t in self.id.tolist()}
+        keys = (self.id | (self.generation << 16)).tolist()
+        per: dict[int, tuple[list[int], list[int]]] = {t: ([], []) for t in keys}
         for t, f, n in zip(
             self.frame_track.tolist(), self.frame_index.tolist(), self.frame_points.tolist(), strict=True
         ):
@@ -118,6 +128,7 @@ class TrackTable:
             per[t][1].append(n)
         return {
             "id": self.id.tolist(),
+            "generation": self.generation.tolist(),
             "class_id": self.semantic.tolist(),
             "raw_class": label_map.to_raw(self.semantic).tolist(),
             "first_frame": self.first_frame.tolist(),
@@ -126,8 +137,8 @@ class TrackTable:
             "n_frames": self.n_frames.tolist(),
             "confidence": self.confidence.tolist(),
             "min_link_iou": self.min_link_iou.tolist(),
-            "frames": [per[t][0] for t in self.id.tolist()],
-            "frame_points": [per[t][1] for t in self.id.tolist()],
+            "frames": [per[t][0] for t in keys],
+            "frame_points": [per[t][1] for t in keys],
         }
 
 
@@ -181,15 +192,6 @@ def match_ids(iou: np.ndarray, min_iou: float = 0.5) -> list[tuple[int, int]]:
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if iou[r, c] > min_iou]
 
 
-def _pack(values: np.ndarray) -> str:
-    """int64 array -> base64 of zlib-compressed little-endian bytes (JSON-safe)."""
-    return base64.b64encode(zlib.compress(values.astype("<i8").tobytes(), 6)).decode("ascii")
-
-
-def _unpack(text: str) -> np.ndarray:
-    return np.frombuffer(zlib.decompress(base64.b64decode(text)), dtype="<i8").astype(np.int64)
-
-
 def _keys(frame: np.ndarray, point: np.ndarray) -> np.ndarray:
     return (frame.astype(np.int64) << 32) | point.astype(np.int64)
 
@@ -200,25 +202,35 @@ class Stitcher:
     Args:
         label_map: dataset label map (default SemanticKITTI) for ``learning_map_inv`` and things.
         min_iou: a match needs IoU strictly above this (the paper's 0.5).
+        reuse_after: once the 65 535 ids are exhausted, an id is handed out again only after this
+            many frames (frame numbers of the volumes) without it.
     """
 
-    def __init__(self, label_map: LabelMap | None = None, *, min_iou: float = 0.5) -> None:
+    def __init__(
+        self, label_map: LabelMap | None = None, *, min_iou: float = 0.5, reuse_after: int = REUSE_AFTER
+    ) -> None:
         self.label_map = label_map or load_label_map("semantic-kitti")
         self.min_iou = float(min_iou)
-        self.next_id = 1
+        self.ids = IdPool(reuse_after)
         self.n_volumes = 0
         self._first: int | None = None  # first frame of the previous volume
         self._last: int | None = None  # last frame written
         self._carry_keys = np.zeros(0, np.int64)  # previous volume's tracked thing points
-        self._carry_ids = np.zeros(0, np.int64)
-        self._tracks: dict[int, _Track] = {}
+        self._carry_ids = np.zeros(0, np.int64)  # their track keys
+        self._tracks: dict[int, _Track] = {}  # by track key
+
+    @property
+    def next_id(self) -> int:
+        """The id the counter hands out next (beyond 65 535: ids are reused)."""
+        return self.ids.next_id
 
     # ------------------------------------------------------------------ stitching
     def add_volume(self, volume: VolumeLabels) -> list[FinishedFrame]:
         """Stitch one volume; return the frames it owns (first volume containing them), in order.
 
         Raises:
-            StitchError: a volume out of order, inconsistent arrays, or more than 65 535 ids.
+            StitchError: a volume out of order, inconsistent arrays.
+            IdSpaceExhausted: all 65 535 ids were used within the last ``reuse_after`` frames.
         """
         frames, frame, point, sem, inst, thing, sizes = self._check(volume)
         has_id = thing & (inst > 0)
@@ -234,15 +246,11 @@ class Stitcher:
             )
             for r, c in match_ids(iou, self.min_iou):
                 links[int(nb[c])] = (int(pa[r]), float(iou[r, c]))
-        mapping: dict[int, int] = {}
+        mapping: dict[int, int] = {}  # raw id -> track key
+        first, last = int(frames[0]), int(frames[-1])
         for raw in np.unique(inst[has_id]).tolist():
-            if raw in links:
-                mapping[raw] = links[raw][0]
-            else:
-                if self.next_id > MAX_ID:
-                    raise StitchError(f"more than {MAX_ID} instance ids in one sequence")
-                mapping[raw] = self.next_id
-                self.next_id += 1
+            mapping[raw] = links[raw][0] if raw in links else self.ids.take(first, until=last)
+        self.ids.touch(mapping.values(), last)  # in use (matched or carried) through this volume
         raws = np.array(sorted(mapping), dtype=np.int64)
         tracked = np.zeros(inst.shape, np.int64)
         if raws.size:
@@ -263,7 +271,7 @@ class Stitcher:
                 continue
             sel = order[bounds[j] : bounds[j + 1]]
             label = np.zeros(int(sizes[j]), np.uint32)
-            label[point[sel]] = raw_sem[sel] | (tracked[sel].astype(np.uint32) << 16)
+            label[point[sel]] = raw_sem[sel] | (key_id(tracked[sel]).astype(np.uint32) << 16)
             self._account(f, tracked[sel], sem[sel], inst[sel], volume.scores)
             out.append(FinishedFrame(frame=f, label=label))
 
@@ -330,13 +338,15 @@ class Stitcher:
 
     # ------------------------------------------------------------------ outputs and state
     def track_table(self) -> TrackTable:
-        """The tracks written so far (ids with at least one written point), sorted by id."""
-        ids = sorted(t for t, tr in self._tracks.items() if tr.frames)
-        rows = [self._tracks[t] for t in ids]
-        ft = [(t, f, n) for t in ids for f, n in sorted(self._tracks[t].frames.items())]
+        """The tracks written so far (keys with at least one written point), sorted by (id, generation)."""
+        keys = sorted((t for t, tr in self._tracks.items() if tr.frames), key=lambda t: (key_id(t), t))
+        rows = [self._tracks[t] for t in keys]
+        ft = [(t, f, n) for t in keys for f, n in sorted(self._tracks[t].frames.items())]
         i64 = np.int64
+        key = np.array(keys, i64)
         return TrackTable(
-            id=np.array(ids, i64),
+            id=key_id(key),
+            generation=key_generation(key),
             semantic=np.array([min(r.classes, key=lambda c: (-r.classes[c], c)) for r in rows], i64),
             first_frame=np.array([min(r.frames) for r in rows], i64),
             last_frame=np.array([max(r.frames) for r in rows], i64),
@@ -355,13 +365,14 @@ class Stitcher:
         Size: O(thing points of the previous volume's shared frames + track-frames), no scan data;
         the carried points are delta-encoded and zlib-compressed (7 KB for the 16 000 points a
         4-scan VLP-32 volume carries, ~300 KB as JSON lists); the track statistics grow with the
-        track-frames (~60 KB after 40 VLP-32 frames).
+        track-frames (~60 KB after 40 VLP-32 frames); the id pool is two compressed arrays of at
+        most 65 535 ids (a few KB until ids are reused, ~200 KB after).
         """
         return {
             "version": STATE_VERSION,
             "label_map": self.label_map.name,
             "min_iou": self.min_iou,
-            "next_id": self.next_id,
+            "ids": self.ids.state_dict(),
             "n_volumes": self.n_volumes,
             "first": self._first,
             "last": self._last,
@@ -369,7 +380,7 @@ class Stitcher:
             "carry_ids": _pack(self._carry_ids),
             "tracks": [
                 {
-                    "id": tid,
+                    "key": tid,
                     "classes": [[c, n] for c, n in sorted(t.classes.items())],
                     "frames": [[f, n] for f, n in sorted(t.frames.items())],
                     "conf_sum": t.conf_sum,
@@ -395,12 +406,12 @@ class Stitcher:
             raise StitchError(
                 f"stitch state is for label map {state['label_map']!r}, not {s.label_map.name!r}"
             )
-        s.next_id, s.n_volumes = int(state["next_id"]), int(state["n_volumes"])
+        s.ids, s.n_volumes = IdPool.from_state(state["ids"]), int(state["n_volumes"])
         s._first, s._last = state["first"], state["last"]
         s._carry_keys = np.cumsum(_unpack(state["carry_keys"]))
         s._carry_ids = _unpack(state["carry_ids"])
         for t in state["tracks"]:
-            s._tracks[int(t["id"])] = _Track(
+            s._tracks[int(t["key"])] = _Track(
                 classes={int(c): int(n) for c, n in t["classes"]},
                 frames={int(f): int(n) for f, n in t["frames"]},
                 conf_sum=float(t["conf_sum"]),

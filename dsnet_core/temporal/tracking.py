@@ -13,8 +13,12 @@ Every live track is compared with every detection of a compatible class (the lab
 
 Pairs within ``max_distance`` metres are taken greedily, closest first. Unmatched detections
 start tracks with ids from one counter per sequence; a track unseen for more than ``max_age``
-frames ends and its id is never handed out again. :meth:`Tracker.state_dict` /
-:meth:`Tracker.from_state` carry everything, so a resumed run continues identically.
+frames ends. Its id is not handed out again until the 65 535 ids of a label are exhausted; then
+ids unused for more than ``reuse_after`` frames are recycled, least recently used first
+(:class:`~dsnet_core.temporal.ids.IdPool`: a live or coasting track's id counts as used every
+frame). Inside the tracker a track is named by its key ``id | generation << 16``; labels carry the
+id. :meth:`Tracker.state_dict` / :meth:`Tracker.from_state` carry everything, so a resumed run
+continues identically.
 """
 
 from __future__ import annotations
@@ -25,14 +29,16 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from dsnet_core.labels import LabelMap, load_label_map
-from dsnet_core.temporal.stitching import MAX_ID, StitchError
+from dsnet_core.temporal.ids import REUSE_AFTER, IdPool, key_id
+from dsnet_core.temporal.stitching import StitchError
 
-STATE_VERSION = 2
+STATE_VERSION = 3  # 2: no id pool (ids never reused)
 
 
 @dataclass
 class Track:
-    """A live track: world position (x, y, z) metres at ``time``, world velocity (m per time unit)."""
+    """A live track (``id``: its key): world position (x, y, z) metres at ``time``, world velocity
+    (m per time unit)."""
 
     id: int
     group: int
@@ -78,6 +84,8 @@ class Tracker:
         max_age: frames a track may go unseen and still be matched.
         constant_velocity: without a learned velocity, predict with the track's last velocity.
         compatible: groups of train ids overriding the label map's ``track_groups``.
+        reuse_after: once the 65 535 ids are exhausted, an id is handed out again only after this
+            many frames without a live track holding it.
     """
 
     def __init__(
@@ -88,6 +96,7 @@ class Tracker:
         max_age: int = 2,
         constant_velocity: bool = True,
         compatible: Sequence[Sequence[int]] | None = None,
+        reuse_after: int = REUSE_AFTER,
     ) -> None:
         self.label_map = label_map or load_label_map("semantic-kitti")
         self.max_distance = float(max_distance)
@@ -99,9 +108,14 @@ class Tracker:
             self._group = np.arange(self.label_map.num_classes) + 1000  # each class its own group
             for g, classes in enumerate(compatible):
                 self._group[list(classes)] = g
-        self.next_id = 1
+        self.ids = IdPool(reuse_after)
         self.n_frames = 0
         self.tracks: list[Track] = []
+
+    @property
+    def next_id(self) -> int:
+        """The id the counter hands out next (beyond 65 535: ids are reused)."""
+        return self.ids.next_id
 
     def add_detections(
         self,
@@ -122,10 +136,11 @@ class Tracker:
                 unit), or None for the constant-velocity model.
 
         Returns:
-            ``(M,) int64`` track ids.
+            ``(M,) int64`` track keys: ``id | generation << 16``, the track id until ids are reused
+            (:func:`relabel` writes the id).
 
         Raises:
-            StitchError: more than 65 535 ids in the sequence.
+            IdSpaceExhausted: all 65 535 ids were in use within the last ``reuse_after`` frames.
         """
         t = float(self.n_frames if time is None else time)
         cent = np.asarray(centres, np.float64).reshape(-1, 3)
@@ -144,12 +159,10 @@ class Tracker:
             if det in assigned:
                 tid[det] = assigned[det]
                 continue
-            if self.next_id > MAX_ID:
-                raise StitchError(f"more than {MAX_ID} instance ids in one sequence")
-            tid[det] = self.next_id
+            tid[det] = self.ids.take(self.n_frames)
             v0 = None if vel is None else tuple(float(x) for x in vel[det])
-            self.tracks.append(Track(self.next_id, int(groups[det]), tuple(cent[det]), v0, t))
-            self.next_id += 1
+            self.tracks.append(Track(int(tid[det]), int(groups[det]), tuple(cent[det]), v0, t))
+        self.ids.touch((track.id for track in self.tracks), self.n_frames)  # live and coasting tracks
         self.n_frames += 1
         return tid
 
@@ -224,13 +237,14 @@ class Tracker:
         return {
             "version": STATE_VERSION,
             "label_map": self.label_map.name,
-            "next_id": self.next_id,
+            "ids": self.ids.state_dict(),
             "n_frames": self.n_frames,
             "tracks": [asdict(t) for t in self.tracks],
             "config": {
                 "max_distance": self.max_distance,
                 "max_age": self.max_age,
                 "constant_velocity": self.constant_velocity,
+                "reuse_after": self.ids.reuse_after,
             },
             "group": self._group.tolist(),
         }
@@ -242,7 +256,7 @@ class Tracker:
         Raises:
             StitchError: an unknown state version or another label map's state.
         """
-        if state.get("version", 1) not in (1, STATE_VERSION):
+        if state.get("version") != STATE_VERSION:
             raise StitchError(f"track state version {state.get('version')!r}, expected {STATE_VERSION}")
         tr = cls(label_map, **state["config"])
         if "label_map" in state and state["label_map"] != tr.label_map.name:
@@ -250,7 +264,7 @@ class Tracker:
                 f"track state is for label map {state['label_map']!r}, not {tr.label_map.name!r}"
             )
         tr._group = np.asarray(state["group"], dtype=np.int64)
-        tr.next_id, tr.n_frames = int(state["next_id"]), int(state["n_frames"])
+        tr.ids, tr.n_frames = IdPool.from_state(state["ids"]), int(state["n_frames"])
         for t in state["tracks"]:
             vel = None if t["velocity"] is None else tuple(float(v) for v in t["velocity"])
             pos = tuple(float(v) for v in t["position"])
@@ -272,7 +286,8 @@ def relabel(
 
     Args:
         semantic: ``(N,)`` train ids. instance: ``(N,)`` frame-local ids (0 = none).
-        ids: ``(M,)`` sorted frame-local ids that were tracked; track_ids: ``(M,)`` their track ids.
+        ids: ``(M,)`` sorted frame-local ids that were tracked; track_ids: ``(M,)`` their track ids
+            or keys (``id | generation << 16``: the label gets the id).
         thing: ``(N,) bool`` points that may carry an id (default: thing classes).
     """
     semantic = np.asarray(semantic, np.int64)
@@ -280,5 +295,5 @@ def relabel(
     thing = label_map.is_thing()[semantic] if thing is None else thing
     out = np.zeros(instance.shape, np.int64)
     sel = thing & (instance > 0) & np.isin(instance, ids)
-    out[sel] = np.asarray(track_ids, np.int64)[np.searchsorted(ids, instance[sel])]
+    out[sel] = key_id(np.asarray(track_ids, np.int64))[np.searchsorted(ids, instance[sel])]
     return label_map.to_raw(semantic) | (out.astype(np.uint32) << 16)

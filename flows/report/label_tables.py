@@ -92,6 +92,7 @@ LABEL_TRACKS = TableSpec(
         [
             ("sequence", pa.string()),
             ("id", pa.int64()),
+            ("generation", pa.int32()),  # which hand-out of the id (0 unless the labels reused ids)
             ("class_id", pa.int32()),  # the class of most of its points
             ("first_frame", pa.int32()),
             ("last_frame", pa.int32()),

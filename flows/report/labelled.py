@@ -1,8 +1,9 @@
 """What a run labelled, with or without ground truth: one read of every frame's final labels.
 
 Per frame the points of each class and the instance ids present; per sequence the tracks (an
-instance id of the final labels over the frames it appears in, its class the one of most of its
-points); per class the points, frames and tracks, and the model's confidence in the class
+instance id of the final labels over the frames it appears in — one per hand-out of the id where
+the temporal stage reused ids, told apart by its track table's ``generation`` — its class the one
+of most of its points); per class the points, frames and tracks, and the model's confidence in the class
 (:class:`~flows.report.confidence.ConfidencePass`). Where the ``refine`` stage ran, its
 ``refine_changes`` table gives the points it changed per frame and the class shares before it
 (after + what left a class − what entered it), and its plan the tracks it joined and dissolved.
@@ -23,6 +24,7 @@ from storage.run import RunStore
 from tasks.base import labels_contract
 from tasks.pipeline import Pipeline
 from tasks.refine import CHANGES, RefineStage
+from tasks.track_ids import track_generations
 
 
 @dataclass
@@ -77,7 +79,8 @@ def _sequence(
     confidence = {r["index"]: r for r in conf.rows if r["sequence"] == seq}
     totals = np.zeros(n_classes, np.int64)
     present = np.zeros(n_classes, np.int64)
-    tracks: dict[int, dict[str, Any]] = {}
+    tracks: dict[int, dict[str, Any]] = {}  # by track key (id | generation << 16)
+    generations = track_generations(store, seq, pipeline[pipeline.labels])
     labelled = points = 0
     for index, fid, status, npts in zip(
         frames["index"], frames["frame_id"], frames["status"], frames["n_points"], strict=True
@@ -100,7 +103,7 @@ def _sequence(
         if ok:
             label = arrays.read_item(index, ["label"])["label"]
             sem = lut[label & 0xFFFF].astype(np.int64)
-            inst = (label >> 16).astype(np.int64)
+            inst = generations.keys((label >> 16).astype(np.int64), index)
             counts = np.bincount(sem, minlength=n_classes)[:n_classes]
             totals += counts
             present += counts > 0
@@ -158,8 +161,8 @@ def _sequence(
 def _add_tracks(
     tracks: dict[int, dict], index: int, sem: np.ndarray, inst: np.ndarray, n_classes: int
 ) -> int:
-    """Add one frame's instance points to ``tracks`` (id -> frames, points, points per class); the
-    number of instance ids in the frame."""
+    """Add one frame's instance points to ``tracks`` (track key -> frames, points, points per class);
+    the number of instance ids in the frame."""
     sel = inst > 0
     keys, counts = np.unique(inst[sel] * n_classes + sem[sel], return_counts=True)
     ids = keys // n_classes
@@ -175,16 +178,17 @@ def _add_tracks(
 
 
 def _track_rows(seq: str, tracks: dict[int, dict], rows: list[dict[str, Any]]) -> np.ndarray:
-    """Append one row per track; the class of each, ``(T,) int64``."""
+    """Append one row per track, sorted by (id, generation); the class of each, ``(T,) int64``."""
     classes = []
-    for tid in sorted(tracks):
+    for tid in sorted(tracks, key=lambda k: (k & 0xFFFF, k)):
         t = tracks[tid]
         cls = max(t["classes"].items(), key=lambda kv: (kv[1], -kv[0]))[0]  # most points, then lowest id
         classes.append(cls)
         rows.append(
             {
                 "sequence": seq,
-                "id": int(tid),
+                "id": int(tid) & 0xFFFF,
+                "generation": int(tid) >> 16,
                 "class_id": int(cls),
                 "first_frame": int(t["first"]),
                 "last_frame": int(t["last"]),

@@ -29,7 +29,7 @@ def test_model_options_reach_the_infer_stage_config():
         "tta": 4,
         "tta_flip": True,
     }
-    res = CliRunner().invoke(app, ["label", "x", "--run", "y", "--tta", "0"], env={"COLUMNS": "250"})
+    res = CliRunner().invoke(app, ["label", ".", "--run", "y", "--tta", "0"], env={"COLUMNS": "250"})
     assert res.exit_code == 2 and "--tta" in res.output
 
 

@@ -58,5 +58,7 @@ def test_prior_flags_belong_to_dpls_and_dsnet_flags_do_not(tmp_path):
         (["--method", "dpls", "--tta", "4"], "--tta: not a setting of method dpls"),
         (["--method", "dpls", "--prior-label-map", "x.yaml"], "--prior-label-map: names the label map"),
     ]:
-        res = runner.invoke(app, ["label", "x", "--run", str(tmp_path / "r"), *extra], env={"COLUMNS": "250"})
+        res = runner.invoke(
+            app, ["label", str(tmp_path), "--run", str(tmp_path / "r"), *extra], env={"COLUMNS": "250"}
+        )
         assert res.exit_code == 2 and message in res.output, res.output

@@ -46,7 +46,7 @@ def test_label_method_most_then_export_and_eval(synth_log, tmp_path, cli_env):
 def test_label_method_most_refuses_dsnet_settings(tmp_path):
     res = CliRunner().invoke(
         app,
-        ["label", "x", "--run", str(tmp_path / "r"), "--method", "most", "--tta", "4"],
+        ["label", str(tmp_path), "--run", str(tmp_path / "r"), "--method", "most", "--tta", "4"],
         env={"COLUMNS": "250"},
     )
     assert res.exit_code == 2 and "--tta: not a setting of method most" in res.output

@@ -38,7 +38,7 @@ def test_a_run_folder_that_is_a_file_is_one_line(tmp_path, command):
     res = _run(*[part.format(f=run_file, d=tmp_path) for part in command])
     assert res.exit_code == 2, res.output
     assert res.output.count("\n") == 1 and "Traceback" not in res.output
-    assert f"error: {run_file}: is a file, not a run store folder" in res.output
+    assert f"error: {run_file}: is a file, not a run folder" in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log", "run.json"]  # nothing written
 
 

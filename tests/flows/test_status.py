@@ -48,8 +48,11 @@ def _status(*args) -> tuple[dict[str, list[str]], list[str]]:
         cells = [c.strip() for c in line.split("│")]
         if len(cells) > 3 and cells[1] == "00":
             rows[cells[2]] = cells[3:-1]
+        elif line.startswith(("scores (", "no ground truth scored")):
+            continue  # the headline (the scores, or that none are): not a note
         elif not line.startswith(("┏", "┃", "┡", "└", "│", " ")) and line.strip():
             notes.append(line)
+    assert "no ground truth scored" in res.stdout  # ingest and align only: nothing scored
     return rows, notes
 
 

@@ -187,7 +187,7 @@ def dsnet_refined(synth_log, tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("dsnet-refine")
     ckpt = make_checkpoint(tmp / "ckpt", seed=0)
-    base = get_pipeline()
+    base = get_pipeline(refine=False)
     stages = (
         *[s for s in base.stages if s.name != "score"],
         RefineStage(labels="stitch"),

@@ -9,7 +9,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dsnet_core.refine import RefineParams, RefinePlan, TrackParams, plan_refinement, refine_sequence
+from dsnet_core.refine import (
+    RefineParams,
+    RefinePlan,
+    TrackParams,
+    plan_refinement,
+    refine_sequence,
+    track_rows,
+)
 from dsnet_core.refine.frame import FrameInput
 from dsnet_core.refine.history import TrackHistory, frame_tracks
 from dsnet_core.refine.joining import chain_heads, join_tracks
@@ -180,3 +187,31 @@ def test_without_poses_only_the_track_classes_apply_and_without_tracks_only_the_
     no_tracks = [replace(f, inst=np.zeros_like(f.inst)) for f in noisy]
     out = refine_sequence(no_tracks, scenes.SETS, RefineParams())
     assert all(o.change.by_track == 0 for o in out) and sum(o.change.by_static for o in out) > 0
+
+
+@pytest.mark.parametrize("reused", [True, False])
+def test_a_join_is_refused_where_it_would_stretch_a_reused_id_over_another_track(street, reused):
+    # the overtaking car (2) is missed in frames 10-12 and comes back as 7; the person appears at
+    # frame 20 under id 2 again (a temporal stage that ran out of ids: key 2 | 1 << 16) or, as a
+    # control, under a reused id of another number (9 | 1 << 16)
+    other = (2 if reused else 9) | 1 << 16
+    frames = []
+    for f in street:
+        if 10 <= f.index <= 12:
+            f = _keep(f, f.inst != 2)
+        elif f.index > 12:
+            f = _relabel(f, 2, 7)
+        f = _keep(f, f.inst != 3) if f.index < 20 else _relabel(f, 3, other)
+        frames.append(f)
+    d = plan_refinement(frames, scenes.SETS, RefineParams()).decisions
+    assert d.refused == int(reused) and len(d.joins) == 1 - int(reused)
+    out = refine_sequence(frames, scenes.SETS, RefineParams())
+    for o, f in zip(out, frames, strict=True):
+        car = o.inst[(f.inst == 2) | (f.inst == 7)]
+        assert set(car.tolist()) <= ({2} if f.index < 10 else {7} if reused else {2})
+        np.testing.assert_array_equal(o.inst[f.inst == other], other)  # the person keeps its track
+    rows = track_rows(d)
+    expected = [(1, 0), (2, 0), (2, 1), (7, 0)] if reused else [(1, 0), (2, 0), (9, 1)]
+    assert [(r["id"], r["generation"]) for r in rows] == expected  # sorted by (id, generation)
+    plan = plan_refinement(frames, scenes.SETS, RefineParams())
+    assert RefinePlan.from_dict(json.loads(json.dumps(plan.to_dict()))).decisions.refused == int(reused)

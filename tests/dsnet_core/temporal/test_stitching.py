@@ -314,10 +314,10 @@ def test_state_is_compact_and_round_trips_and_older_versions_are_refused():
         ref.add_volume(volume(data, st, 3, relabel=relabel))
         s.add_volume(volume(data, st, 3, relabel=relabel))
     state = s.state_dict()
-    assert isinstance(state["carry_keys"], str) and state["version"] == 2
+    assert isinstance(state["carry_keys"], str) and state["version"] == 3
     assert np.cumsum(_unpack(state["carry_keys"])).size > 100
-    with pytest.raises(StitchError, match="stitch state version 1, expected 2"):
-        Stitcher.from_state(dict(state, version=1), LM)
+    with pytest.raises(StitchError, match="stitch state version 2, expected 3"):
+        Stitcher.from_state(dict(state, version=2), LM)
     s2 = Stitcher.from_state(json.loads(json.dumps(state)), LM)
     for st in range(3, len(data) - 2):
         a = ref.add_volume(volume(data, st, 3, relabel=relabel))

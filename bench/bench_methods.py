@@ -113,8 +113,16 @@ def make_log(root: Path, sequences: int, frames: int, seed: int, first: int, sen
     stamp.write_text(json.dumps(want) + "\n")
 
 
-def request_of(row: Row, data: Path, store: Path, seqs: list[str], checkpoints: dict[str, str | None]):
-    """The :class:`~flows.request.LabelRequest` ``dsnet label`` would build for ``row``."""
+def request_of(
+    row: Row,
+    data: Path,
+    store: Path,
+    seqs: list[str],
+    checkpoints: dict[str, str | None],
+    refine: bool | None = None,
+):
+    """The :class:`~flows.request.LabelRequest` ``dsnet label`` would build for ``row`` (``refine``:
+    ``--refine/--no-refine``, None for the method's default)."""
     from flows.request import LabelRequest
     from tasks.methods import stage_configs
 
@@ -129,7 +137,7 @@ def request_of(row: Row, data: Path, store: Path, seqs: list[str], checkpoints: 
         root=str(store),
         sequences=seqs,
         method=row.method,
-        method_options=row.options,
+        method_options=row.options if refine is None else {**row.options, "refine": refine},
         stages=stages,
     )
 
@@ -139,7 +147,15 @@ def prior_dir(out: Path, prior: float | str) -> Path:
     return out / "priors" / (str(prior) if prior == "gt" else f"gt-miou{prior:g}")
 
 
-def label_row(key: str, data: Path, store: Path, seqs: list[str], checkpoints: dict, force: bool) -> dict:
+def label_row(
+    key: str,
+    data: Path,
+    store: Path,
+    seqs: list[str],
+    checkpoints: dict,
+    force: bool,
+    refine: bool | None = None,
+) -> dict:
     """Run every stage of the row's pipeline (this process); stage seconds (but score's) and peak RSS."""
     import torch
 
@@ -147,7 +163,7 @@ def label_row(key: str, data: Path, store: Path, seqs: list[str], checkpoints: d
     from tasks.runner import run_stage_plain
 
     torch.set_num_threads(1)
-    request = request_of(ROWS[key], data, store, seqs, checkpoints)
+    request = request_of(ROWS[key], data, store, seqs, checkpoints, refine)
     pipeline = request.pipeline()
     run = {
         **pipeline.record(),
@@ -183,6 +199,7 @@ class Scores:
             m: PanopticEvaluator(label_map, mode=m, keep_rows=False) for m in ("official", "corrected")
         }
         self.switches = SwitchCounter(label_map)
+        self.names = list(label_map.class_names)
 
     def add(self, seq: str, frame: str, gt: np.ndarray, pred: np.ndarray) -> None:
         for ev in self.evals.values():
@@ -203,6 +220,9 @@ class Scores:
             "pq_things_corrected": c.panoptic.pq_things,
             "id_switches": self.switches.switches,
             "class_iou": {name: score.iou for name, score in p.per_class.items()},
+            # points per (predicted, ground-truth) train class, official mode; names by train id
+            "confusion": self.evals["official"].panoptic.conf.tolist(),
+            "class_names": self.names,
         }
 
 
@@ -255,7 +275,9 @@ def markdown(results: dict[str, dict], meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-STAGE_ORDER = ["ingest", "align", "prior", "dpls", "infer", "most", "shift", "fuse", "stitch", "track"]
+STAGE_ORDER = [
+    *("ingest", "align", "prior", "dpls", "infer", "most", "shift", "fuse", "stitch", "track", "refine")
+]
 
 
 def _finite(x):
@@ -282,6 +304,12 @@ def main() -> None:
         "--yaw", type=float, default=None, help="label a copy of the log turned by this yaw (deg)"
     )
     ap.add_argument("--force", action="store_true", help="recompute every stage")
+    ap.add_argument(
+        "--refine",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="end with refine (default: the method's default); --no-refine scores the model's own labels",
+    )
     ap.add_argument("--row", default=None, help=argparse.SUPPRESS)  # worker: label one row, print JSON
     args = ap.parse_args()
     if args.rows == "list":
@@ -314,7 +342,7 @@ def main() -> None:
     reader = SemanticKittiReader(data)
     seqs = args.sequences.split(",") if (args.data and args.sequences) else reader.sequences()
     if args.row is not None:
-        out = label_row(args.row, data, args.out / args.row, seqs, checkpoints, args.force)
+        out = label_row(args.row, data, args.out / args.row, seqs, checkpoints, args.force, args.refine)
         print("ROW " + json.dumps(out))
         return
     keys = args.rows.split(",")
@@ -340,6 +368,8 @@ def main() -> None:
                 cmd += [f"--checkpoint-{m}", c]
         if args.force:
             cmd.append("--force")
+        if args.refine is not None:
+            cmd.append("--refine" if args.refine else "--no-refine")
         t0 = time.perf_counter()
         res = subprocess.run(cmd, capture_output=True, text=True)
         if res.returncode != 0:

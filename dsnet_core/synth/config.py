@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+from dsnet_core.errors import ConfigError
+
+VARIETIES = ("base", "wide")
 
 
 @dataclass(frozen=True)
@@ -19,6 +23,11 @@ class SynthConfig:
         pedestrians: multiplier on the density of walking people.
         parked: probability that a parking slot holds a vehicle.
         jitter_deg: amplitude of the ego's pitch/roll oscillation (degrees).
+        variety: how widely the street styles randomise what the world varies and the styles held
+            fixed (:data:`VARIETIES`): ``base``, or ``wide`` (:mod:`dsnet_core.synth.styles.wide`:
+            textured and low buildings, fences and walls of any height and porosity, bark, people
+            by trees and on grass, rough and undulating grass, patchy remission, flush or jagged
+            road edges, vans as cars). The classic street ignores it (its output is pinned).
     """
 
     sensor: str = "hdl64"
@@ -30,3 +39,8 @@ class SynthConfig:
     pedestrians: float = 1.0
     parked: float = 0.65
     jitter_deg: float = 0.3
+    variety: str = field(default="base", repr=False)  # not in repr: base streams keep their fingerprints
+
+    def __post_init__(self) -> None:
+        if self.variety not in VARIETIES:
+            raise ConfigError(f"unknown synth variety {self.variety!r}; choose {' or '.join(VARIETIES)}")

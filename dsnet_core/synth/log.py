@@ -242,6 +242,8 @@ def generate_log(
             **setup.record(),
             **({"physics": physics} if physics else {}),
         }
+        if config.variety != "base" and setup.style != "classic":
+            record["variety"] = config.variety
         (seq_dir / SETUP_FILE).write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
         log.info("wrote %s (%d frames, %s street, %s)", seq_dir, frames, setup.style, setup.sensor)
     return names

@@ -40,9 +40,12 @@ class Renderer:
         meta = np.array([lo[0], lo[1], GRID_RES, lay.s0, lay.ds, lay.lane_width])
         self.ground = (grid_s, grid_d, meta, lay.edges, lay.classes, lay.lanes)
 
-    def cast(self, pose: np.ndarray, t: float, salt: float = 0.0) -> tuple[np.ndarray, ...]:
+    def cast(
+        self, pose: np.ndarray, t: float, salt: float = 0.0, rng: np.random.Generator | None = None
+    ) -> tuple[np.ndarray, ...]:
         """Geometric hits of every ray from sensor pose ``pose`` ``(4, 4)`` (sensor → world) at time ``t``;
-        ``salt`` varies the foliage penetration draw.
+        ``salt`` varies the foliage penetration draw, ``rng`` the grass of a scene with a
+        :class:`~dsnet_core.synth.surface.Surface` (a fixed one when None).
 
         Returns:
             range ``(R,)`` (inf: no hit), raw semantic ``(R,) int32``, instance ``(R,) int32``,
@@ -58,7 +61,11 @@ class Renderer:
             hits = ground_hits_frenet(origin, rot, self.dirs, self.ground)
         else:
             hits = ground_hits_raster(origin, rot, self.dirs, *self.ground, max_range + 1.0)
-        return cast_rays(
+        surface = self.scene.surface
+        if surface is not None:
+            world_dirs = self.dirs @ rot.T
+            hits = surface.roughen(origin, world_dirs, hits, rng or np.random.default_rng(0))
+        out = cast_rays(
             origin,
             rot,
             self.dirs,
@@ -70,6 +77,10 @@ class Renderer:
             max_range + 1.0,
             salt,
         )
+        if surface is None:
+            return out
+        hit_range, sem, inst, cos, refl = out
+        return hit_range, sem, inst, cos, surface.patch(origin, world_dirs, hit_range, sem, refl)
 
     def render(self, pose: np.ndarray, t: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One sweep.
@@ -78,5 +89,5 @@ class Renderer:
             scan ``(N, 4) float32`` (x, y, z in the sensor frame, metres; remission) and label
             ``(N,) uint32`` (raw semantic | instance << 16).
         """
-        hit_range, sem, inst, cos, refl = self.cast(pose, t, float(rng.uniform(0.0, 1000.0)))
+        hit_range, sem, inst, cos, refl = self.cast(pose, t, float(rng.uniform(0.0, 1000.0)), rng)
         return simulate_returns(self.spec, self.dirs, hit_range, cos, refl, sem, inst, rng)

@@ -24,6 +24,7 @@ from dsnet_core.synth.road import (
     GroundLayout,
     Road,
 )
+from dsnet_core.synth.surface import Surface
 from dsnet_core.synth.traffic import (
     BICYCLE,
     BICYCLIST,
@@ -57,6 +58,7 @@ class Scene:
         ground_reflectivity: ``(256,) float64`` reflectivity per raw ground class (None: the
             defaults of :data:`raycast.GROUND_REFLECTIVITY`).
         style: the street style that built this scene.
+        surface: ground detail of the ``wide`` variety (rough grass, patchy remission; None: none).
     """
 
     road: Road
@@ -70,6 +72,7 @@ class Scene:
     ground: RasterGround | None = None
     ground_reflectivity: np.ndarray | None = None
     style: str = "classic"
+    surface: Surface | None = None
 
     def ego_s(self, t: np.ndarray) -> np.ndarray:
         """Arc length of the ego at times ``t`` (s): mean speed plus a slow surge, so the drive

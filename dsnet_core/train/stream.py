@@ -98,13 +98,16 @@ class StreamLog:
     def record(self) -> dict:
         """What the model card records of the stream."""
         o = self.options
-        return {
+        out = {
             "seed": self.seed,
             "samples_per_epoch": self.steps,
             "frames": o.frames,
             "styles": list(o.styles) if o.styles else "all",
             "sensors": list(o.sensors) if o.sensors else "all",
         }
+        if o.config.variety != "base":  # base streams keep the record (and fingerprint) they had
+            out["variety"] = o.config.variety
+        return out
 
     def fingerprint(self) -> str:
         """sha256 of the stream's definition (seed, options, samples per epoch)."""

@@ -33,6 +33,12 @@ def synth(
         "degrees), azimuth_steps, height, remission_gain, falloff, dropout, far_dropout, range_noise, "
         "min_range, max_range (a LiDAR no preset has; recorded in synth.json).",
     ),
+    variety: str = typer.Option(
+        "base",
+        help="How widely the street styles vary: base, or wide (textured and low buildings, fences of "
+        "any height and porosity, bark, people by trees and on grass, rough grass, patchy remission, "
+        "flush kerbs, vans as cars). The classic street ignores it.",
+    ),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
     from dsnet_core.synth.physics import parse_physics
@@ -40,8 +46,9 @@ def synth(
     with errors_exit():
         check_output(out, "OUT", "folder")
         altered = parse_physics(physics)
-        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style, altered)
+        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style, altered, variety)
     what = sensor if style == "classic" else f"{style} street, {sensor}"
+    what += "" if variety == "base" or style == "classic" else f", {variety} variety"
     what += ", altered physics" if physics else ""
     typer.echo(f"wrote {sequences} sequence(s) × {frames} frames ({what}) to {out.resolve() / 'sequences'}")
 
@@ -56,6 +63,7 @@ def generate(
     overwrite: bool = False,
     style: str = "classic",
     physics: dict | None = None,
+    variety: str = "base",
 ) -> list[str]:
     """Write a synthetic log with a progress bar; returns the sequence names.
 
@@ -64,7 +72,9 @@ def generate(
     """
     from rich.progress import Progress
 
-    from dsnet_core.synth import generate_log
+    from dsnet_core.synth import SynthConfig, generate_log
+
+    config = SynthConfig(variety=variety)  # an unknown variety is a ConfigError (one line)
 
     with Progress(transient=True) as progress:
         task = progress.add_task("ray-casting sweeps", total=sequences * frames)
@@ -78,5 +88,6 @@ def generate(
             overwrite=overwrite,
             style=style,
             physics=physics,
+            config=config,
             on_frame=lambda _seq, _i: progress.advance(task),
         )

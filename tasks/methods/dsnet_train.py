@@ -48,6 +48,9 @@ class DsnetTrainOptions(TrainOptions):
     stream_styles: str | None = Field(None, description="--stream: street styles (default: all).")
     stream_sensors: str | None = Field(None, description="--stream: sensors (default: all).")
     stream_workers: int = Field(1, ge=0, description="--stream: background render processes.")
+    stream_variety: Literal["base", "wide"] = Field(
+        "base", description="--stream: the street styles' variety, base or wide."
+    )
 
 
 def model_config(options: DsnetTrainOptions):
@@ -76,6 +79,7 @@ def parse_grid(text: str) -> tuple[int, int, int]:
 
 def stream_reader(options: DsnetTrainOptions):
     """The :class:`~dsnet_core.train.stream.StreamLog` of ``--stream`` (samples of k = ``scans``)."""
+    from dsnet_core.synth.config import SynthConfig
     from dsnet_core.synth.stream import StreamOptions
     from dsnet_core.train.stream import StreamLog
 
@@ -84,6 +88,7 @@ def stream_reader(options: DsnetTrainOptions):
         frames=options.scans,
         styles=tuple(styles) if styles else None,
         sensors=tuple(sensors) if sensors else None,
+        config=SynthConfig(variety=options.stream_variety),
     )
     return StreamLog(options.seed, stream, options.stream, options.stream_workers)
 

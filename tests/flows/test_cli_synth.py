@@ -113,3 +113,15 @@ def test_synth_style_and_sensor_are_recorded(tmp_path):
     assert (record["style"], record["sensor"], record["beams"]) == ("country", "vlp16", 16)
     res = dsnet("synth", str(tmp_path / "x"), "--style", "suburb")
     assert res.returncode == 2 and "unknown street style 'suburb'" in res.stderr
+
+
+def test_synth_variety_is_said_recorded_and_checked(tmp_path):
+    out = tmp_path / "log"
+    res = dsnet(
+        "synth", str(out), "--frames", "1", "--style", "residential", "--sensor", "vlp16", "--variety", "wide"
+    )
+    assert res.returncode == 0, res.stderr
+    assert "(residential street, vlp16, wide variety)" in res.stdout
+    assert json.loads((out / "sequences/00/synth.json").read_text())["variety"] == "wide"
+    res = dsnet("synth", str(tmp_path / "x"), "--variety", "narrow")
+    assert res.returncode == 2 and "unknown synth variety 'narrow'; choose base or wide" in res.stderr

@@ -44,3 +44,16 @@ def test_init_from_bundled_is_the_methods_bundled_model():
     for bad, said in (({"batch_size": 0}, "batch_size"), ({"lr": -1}, "lr"), ({"threads": 0}, "threads")):
         with pytest.raises(ValidationError, match=said):
             DsnetTrainOptions(out="x", **bad)
+
+
+def test_stream_variety_reaches_the_stream():
+    from tasks.methods.dsnet_train import stream_reader
+
+    wide = stream_reader(
+        DsnetTrainOptions(out="x", stream=3, stream_variety="wide", stream_styles="residential")
+    )
+    assert wide.options.config.variety == "wide" and wide.record()["variety"] == "wide"
+    base = stream_reader(DsnetTrainOptions(out="x", stream=3))
+    assert base.options.config.variety == "base" and "variety" not in base.record()
+    with pytest.raises(ValidationError, match="stream_variety"):
+        DsnetTrainOptions(out="x", stream_variety="narrow")

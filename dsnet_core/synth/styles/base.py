@@ -20,6 +20,8 @@ from dsnet_core.synth.ground import (
     street_height,
 )
 from dsnet_core.synth.layout import (
+    BUILDING,
+    FENCE,
     TRUNK,
     VEGETATION,
     Lot,
@@ -28,7 +30,7 @@ from dsnet_core.synth.layout import (
     StuffPlacer,
     _runs,
 )
-from dsnet_core.synth.primitives import PrimitiveSet
+from dsnet_core.synth.primitives import Part, PrimitiveSet
 from dsnet_core.synth.road import (
     PARKING,
     SIDEWALK,
@@ -39,6 +41,10 @@ from dsnet_core.synth.road import (
 from dsnet_core.synth.scene import Scene
 from dsnet_core.synth.styles.painting import Painting, lift, paint_section
 from dsnet_core.synth.styles.section import Section
+from dsnet_core.synth.styles.wide import Wide, jagged_edges, other_vehicle
+from dsnet_core.synth.styles.wide import car as wide_car
+from dsnet_core.synth.styles.wide import populate as populate_wide
+from dsnet_core.synth.surface import Surface
 from dsnet_core.synth.traffic import (
     BICYCLE,
     BICYCLIST,
@@ -51,6 +57,12 @@ from dsnet_core.synth.traffic import (
     TRUCK,
     Traffic,
 )
+
+
+def wide_shapes() -> dict:
+    """The things of the wide variety: vans are cars, other-vehicle is caravans, trailers, tractors."""
+    return {**STYLE_SHAPES, CAR: wide_car, OTHER_VEHICLE: other_vehicle}
+
 
 STYLE_SHAPES = {
     CAR: shapes.any_car,
@@ -84,6 +96,7 @@ class Ctx:
     s_hi: float
     stuff: list[PrimitiveSet] = field(default_factory=list)
     ego_d: float = 0.0
+    wide: Wide | None = None  # the wide variety's draws (None: base)
 
     def window(self, speed: float) -> tuple[float, float]:
         """Start positions from which an actor at ``speed`` comes within view during the drive."""
@@ -98,15 +111,43 @@ class Ctx:
 
 
 class StylePlacer(StuffPlacer):
-    """The classic stuff placer with varied trees (crown shapes and porosity)."""
+    """The classic stuff placer with varied trees (crown shapes and porosity); with ``wide`` (the
+    wide variety) buildings, fences and trunks go through :class:`~.wide.Wide`."""
 
     crown: str | None = None  # one species for a street's tree rows (None: mixed)
 
+    def __init__(self, rng, road, street, occ, wide: Wide | None = None) -> None:
+        super().__init__(rng, road, street, occ)
+        self.wide = wide
+
     def tree(self, s: float, d: float, crown: str | None = None) -> None:
         trunk, crown_parts = shapes.tree(self.rng, crown or self.crown)
-        if self.occ.take(s, d, trunk[0].half[0] + 0.3):
+        radius = trunk[0].half[0] + 0.3
+        if self.occ.take(s, d, radius):
+            if self.wide is not None:
+                trunk = self.wide.trunk(trunk)
+                self.wide.trees.append((s, d, radius))
             self.place(trunk, s, d, TRUNK)
             self.place(crown_parts, s, d, VEGETATION)
+
+    def place(self, parts: list[Part], s: float, d: float, semantic: int, yaw_offset: float = 0.0) -> None:
+        if self.wide is not None and semantic == BUILDING:
+            parts = self.wide.building(parts)
+        elif self.wide is not None and semantic == FENCE and len(parts) == 1:
+            parts = [self.wide.fence_part(parts[0])]
+        super().place(parts, s, d, semantic, yaw_offset)
+
+    def along(
+        self, s0: float, s1: float, d: float, width: float, height: float, semantic: int, refl: float
+    ) -> None:
+        if self.wide is None or semantic != FENCE:
+            return super().along(s0, s1, d, width, height, semantic, refl)
+        run = self.wide.fence_run(s0, s1)
+        pieces = max(1, int(np.ceil((s1 - s0) / 8.0)))
+        step = (s1 - s0) / pieces
+        for k in range(pieces):
+            sc = s0 + (k + 0.5) * step
+            StuffPlacer.place(self, run.piece(sc, step / 2), sc, d, FENCE)
 
 
 class StreetStyle:
@@ -162,7 +203,7 @@ class StreetStyle:
         default_populate(self, ctx)
 
     def placer(self, ctx: Ctx) -> StylePlacer:
-        return StylePlacer(ctx.rng, ctx.road, ctx.street, ctx.occ)
+        return StylePlacer(ctx.rng, ctx.road, ctx.street, ctx.occ, ctx.wide)
 
     # -- the build --------------------------------------------------------------------------------
     def make_road(self, rng: np.random.Generator, s_min: float, s_max: float) -> Road:
@@ -186,6 +227,9 @@ class StreetStyle:
         sec = self.section(rng)
         street = self._street(rng, sec, s_lo, s_hi)
         kerb = float(rng.uniform(*self.kerb)) if self.kerb[1] > 0 else 0.0
+        wide = Wide.draw(rng) if config.variety == "wide" else None
+        if wide is not None:
+            kerb = wide.kerb(kerb)
         crown = float(rng.uniform(*self.crown))
         sloped = rng.random() < self.hilly[0]
         grade = grade_profile(rng, self.hilly[1] if sloped else 0.0)
@@ -194,16 +238,23 @@ class StreetStyle:
         canvas = make_canvas(road, xy.min(axis=0) - reach - 5.0, xy.max(axis=0) + reach + 5.0)
         painting = Painting(rng, canvas, street, sec, *paint_section(canvas, street, sec))
         self.paint(painting)
+        if wide is not None:
+            jagged_edges(wide.rng, painting, kerb)
         height = street_height(canvas.hs, canvas.hd, grade, crown, sec.carriageway)
         ground = finish(canvas, painting.cls, painting.raised, height, kerb)
         del canvas, painting
 
         occ = Occupancy()
-        traffic = Traffic(rng, road, street, occ, shapes=dict(STYLE_SHAPES))
+        traffic = Traffic(rng, road, street, occ, shapes=wide_shapes() if wide else dict(STYLE_SHAPES))
         ctx = Ctx(
-            rng, config, road, street, sec, ground, occ, traffic, ego_speed, slack, duration, s_lo, s_hi
-        )
+            rng, config, road, street, sec, ground, occ, traffic, ego_speed, slack, duration, s_lo, s_hi,
+            wide=wide,
+        )  # fmt: skip
         self.populate(ctx)
+        surface = None
+        if wide is not None:
+            populate_wide(wide, ctx, StylePlacer(wide.rng, road, street, occ, wide))
+            surface = Surface.draw(wide.rng, xy.min(axis=0) - reach - 5.0, xy.max(axis=0) + reach + 5.0)
         static = lift(PrimitiveSet.concat([traffic.static(), *ctx.stuff]), ground)
         actors = traffic.actors()
         return Scene(
@@ -218,6 +269,7 @@ class StreetStyle:
             ground,
             None,
             self.name,
+            surface,
         )
 
     def _street(self, rng: np.random.Generator, sec: Section, s_lo: float, s_hi: float) -> Street:

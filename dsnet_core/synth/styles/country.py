@@ -17,7 +17,7 @@ from dsnet_core.synth.traffic import BICYCLIST, CAR, MOTORCYCLIST, OTHER_VEHICLE
 # -- country ------------------------------------------------------------------------------------
 class CountryPlacer(StylePlacer):
     def __init__(self, ctx: Ctx) -> None:
-        super().__init__(ctx.rng, ctx.road, ctx.street, ctx.occ)
+        super().__init__(ctx.rng, ctx.road, ctx.street, ctx.occ, ctx.wide)
         self.crown = str(ctx.rng.choice(shapes.CROWNS))
         self.avenue = ctx.rng.random() < 0.5
 

@@ -231,7 +231,7 @@ class ParkingLot(StreetStyle):
         speed = -float(rng.uniform(2.0, 5.0))
         traffic.fill_lane(lane / 2, speed, *ctx.window(speed), (30.0, 120.0), lambda: CAR)
         fill = float(rng.uniform(0.5, 0.95))
-        placer = StylePlacer(rng, ctx.road, ctx.street, ctx.occ)
+        placer = StylePlacer(rng, ctx.road, ctx.street, ctx.occ, ctx.wide)
         for side, sign in enumerate(SIDES):
             for d0, d1, kind in self.rows[side]:
                 dc = sign * (d0 + d1) / 2

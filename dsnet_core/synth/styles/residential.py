@@ -16,7 +16,7 @@ from dsnet_core.synth.traffic import CAR, MOTORCYCLIST, OTHER_VEHICLE, TRUCK
 
 class ResidentialPlacer(StylePlacer):
     def __init__(self, ctx: Ctx, driveways: dict[int, list[tuple[float, float]]]) -> None:
-        super().__init__(ctx.rng, ctx.road, ctx.street, ctx.occ)
+        super().__init__(ctx.rng, ctx.road, ctx.street, ctx.occ, ctx.wide)
         self.crown = str(ctx.rng.choice(shapes.CROWNS))
         self.driveways = driveways
 

@@ -59,7 +59,7 @@ class Arterial(StreetStyle):
     def populate(self, ctx: Ctx) -> None:
         default_populate(self, ctx)
         rng, sec = ctx.rng, ctx.section
-        placer = StylePlacer(rng, ctx.road, ctx.street, ctx.occ)
+        placer = StylePlacer(rng, ctx.road, ctx.street, ctx.occ, ctx.wide)
         placer.crown = str(rng.choice(shapes.CROWNS))
         if sec.median_class == TERRAIN:
             s = ctx.s_lo + rng.uniform(0.0, 10.0)
@@ -85,7 +85,7 @@ class Arterial(StreetStyle):
 # -- downtown -----------------------------------------------------------------------------------
 class DowntownPlacer(StylePlacer):
     def __init__(self, ctx: Ctx, pits: dict[int, list[float]]) -> None:
-        super().__init__(ctx.rng, ctx.road, ctx.street, ctx.occ)
+        super().__init__(ctx.rng, ctx.road, ctx.street, ctx.occ, ctx.wide)
         self.crown = str(ctx.rng.choice(["round", "columnar", "sparse"]))
         self.pits = pits
 

@@ -125,7 +125,8 @@ def calibrate(trainer, device: str) -> float:
             torch.cuda.synchronize()
         marks.append(time.perf_counter())
 
-    trainer._train_epoch("semantic", 0, trainer._optimizer("semantic"), on_step)
+    opt = trainer.optimizer("semantic")
+    trainer.train_epoch("semantic", 0, opt, on_step, trainer.wrap())
     if len(marks) < 3:
         return 1.0 / (marks[-1] - marks[0] + 1e-9) if len(marks) > 1 else 0.1
     return (len(marks) - 2) / (marks[-1] - marks[1])
@@ -143,8 +144,8 @@ def make_trainer_class(base):
         longest: float = 0.0
         epochs_here: int = 0
 
-        def _save(self, stage, epochs_done, opt, shift=None) -> None:
-            super()._save(stage, epochs_done, opt, shift)
+        def save(self, stage, epochs_done, opt, **extra) -> None:
+            super().save(stage, epochs_done, opt, **extra)
             ckpt_parts.pack(self.out, self.export)
             now = time.perf_counter()
             self.longest = max(self.longest, now - self.mark)

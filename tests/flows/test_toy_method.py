@@ -62,7 +62,7 @@ class ToyTrainer(TrainerSkeleton):
         return float(loss.detach())
 
     def validate(self, stage: str) -> dict[str, Any]:
-        return {"val_mean_range": float(self.model.weight)}
+        return {"val_mean_range": float(self.model.weight.detach())}
 
     def write_checkpoint(self, staging: Path, stage: str, extra: dict) -> None:
         save_tensors(self.model.state_dict(), staging / "model.safetensors")

@@ -63,8 +63,9 @@ def method_command(method):
                     f"{method.name} trains in one process: run it without torchrun (or --nproc_per_node 1)"
                 )
             line = _run(method, options)
-        typer.echo(line)
-        typer.echo(f"metrics table: {options.out.resolve() / 'metrics.csv'}")
+        if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, the final lines from rank 0 only
+            typer.echo(line)
+            typer.echo(f"metrics table: {options.out.resolve() / 'metrics.csv'}")
 
     fields = method.TrainOptions.model_fields
     command.__signature__ = inspect.Signature([_parameter(n, f) for n, f in fields.items()])

@@ -147,6 +147,7 @@ def test_label_with_an_imported_model_then_relabel_with_another(prefect_api_url,
         "shift": "fresh",
         "fuse": "fresh",
         "track": "fresh",  # k = 1 labels with tracking by default
+        "refine": "fresh",  # then refines them (on by default)
         "score": "fresh",
     }
 

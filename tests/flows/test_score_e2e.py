@@ -40,12 +40,12 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
     store = RunStore(root)
     from tasks.run_config import read_run
 
-    used = read_run(store).pipeline()  # k = 1: tracked ids (``track``)
-    assert used.labels == "track"
+    used = read_run(store).pipeline()  # k = 1: tracked ids (``track``), then refined (the default)
+    assert used.labels == "refine" and "track" in used
     reader = SemanticKittiReader(synth_log)
     ref = PanopticEvaluator(load_label_map("semantic-kitti"))
     for seq in ("00", "01"):
-        arrays = store.arrays(seq, used["track"].contract)
+        arrays = store.arrays(seq, used[used.labels].contract)
         for i, frame in enumerate(reader.frames(seq)):
             ref.add(reader.labels(frame), arrays.read_item(i)["label"], frame.frame_id, seq)
     want = ref.result()
@@ -55,7 +55,7 @@ def test_label_flow_scores_reports_and_publishes(prefect_api_url, synth_log, tmp
         assert (run[key] is None and math.isnan(v)) or run[key] == v, key
     assert run["frames"] == 12 and run["model_card"].startswith("tiny@")
     stages_timed = {t["stage"] for t in read_report_table(store, "stage_timings").to_pylist()}
-    assert stages_timed == {"ingest", "align", "infer", "shift", "fuse", "track", "score"}
+    assert stages_timed == {"ingest", "align", "infer", "shift", "fuse", "track", "refine", "score"}
     review = read_report_table(store, "review_queue").to_pylist()
     assert review and review[0]["source"] in ("fuse/instances", "track/tracked")
     assert [r["confidence"] for r in review] == sorted(r["confidence"] for r in review)

@@ -2,7 +2,8 @@
 
 The tests that pin values by digest or compare classes run again in subprocesses that emulate
 other CPUs on this one: numpy's SIMD dispatch (``NPY_DISABLE_CPU_FEATURES``, numpy ≥ 2.4 names:
-the older ``AVX512F …`` names are ignored without a word), torch's kernels (``ATEN_CPU_CAPABILITY``),
+the older ``AVX512F …`` names are not disabled: numpy warns and keeps its AVX-512 kernels), torch's
+kernels (``ATEN_CPU_CAPABILITY``),
 OpenBLAS's kernel (``OPENBLAS_CORETYPE``), numba's code generation (``NUMBA_CPU_NAME``) and MKL's
 code path (``MKL_CBWR``). Each emulation is first checked to be in effect.
 """

@@ -70,7 +70,15 @@ def test_a_prefect_server_on_postgresql_two_dask_workers_and_s3(
         database_log = pg_log.read_text(errors="replace")
     for bad in ("ERROR", "Traceback", "sqlalchemy.exc", "asyncpg.exceptions"):
         assert bad not in server_log, server_log[-4000:]
-    assert " ERROR: " not in database_log and " FATAL: " not in database_log, database_log[-4000:]
+    errors = [line for line in database_log.splitlines() if " ERROR: " in line or " FATAL: " in line]
+    assert not [e for e in errors if _PREFECT_RACE not in e], database_log[-4000:]
+
+
+# Prefect's server inserts a task run from the client's call and from its task-run events; the
+# loser of that race gets a primary-key violation, which the server's event recorder absorbs (its
+# log above stays free of errors and every task run ends COMPLETED in the database), but
+# PostgreSQL still logs the refused INSERT (PrefectHQ/prefect#21807, #21809).
+_PREFECT_RACE = 'duplicate key value violates unique constraint "pk_task_run"'
 
 
 def _runs_in_postgres(url: str) -> tuple[dict[str, int], dict[str, int]]:

@@ -20,40 +20,26 @@ import pytest
 
 from dsnet_core.labels import class_map_of, load_label_map
 from dsnet_core.temporal.ids import MAX_ID, Generations, track_key
-from storage.contract import ArraySpec, TableSpec
+from storage.contract import TableSpec
 from storage.run import RunStore
 from tasks.align import AlignStage
 from tasks.base import CLASS_MAP, FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
-from tasks.fuse import INSTANCES
 from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
 from tasks.refine import RefineStage
 from tasks.runner import run_stage_plain
 from tasks.stitch import StitchStage
+from tests.helpers.stand_ins import FuseStandIn
 
 LM = load_label_map("semantic-kitti")
 CAR = 1
 WINDOW = 1  # stitch's id_reuse_after
 
 
-class Fragments(Stage):
+class Fragments(FuseStandIn):
     """Stands in for ``fuse``: every point a car, points 2i and 2i + 1 of a volume one instance."""
 
-    name = "fuse"
-    upstream = ("align",)
     version = "fragments-1"
-    Config = StageConfig
-    item = "volume"
-    arrays = (ArraySpec("sem", "uint8"), ArraySpec("inst", "int32"))
-    tables = (INSTANCES,)
-
-    def plan(self, ctx: StageContext) -> Plan:
-        align = ctx.manifest("align")
-        return Plan(
-            n_items=align.n_items,
-            max_points=int(align.plan["max_points"]),
-            meta={CLASS_MAP: class_map_of(LM)},
-        )
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         align = ctx.arrays("align")

@@ -11,15 +11,16 @@ import numpy as np
 import pytest
 
 from dsnet_core.errors import CheckpointError, ConfigError
-from dsnet_core.labels import class_map_of, load_label_map
+from dsnet_core.labels import load_label_map
 from storage.run import RunStore
-from tasks.base import CLASS_MAP, ItemResult, Plan, StageContext
+from tasks.base import ItemResult, Plan, StageContext
 from tasks.methods import get_pipeline
 from tasks.most import MostStage
 from tasks.pipeline import Pipeline
 from tasks.runner import prepare_stage, run_stage_plain
 from tests.helpers.kill import kill_track_in_a_copy
 from tests.helpers.run_stages import run_all_stages
+from tests.helpers.stand_ins import align_shaped_plan
 from tests.model_helpers import make_checkpoint, make_most_checkpoint
 
 LM = load_label_map("semantic-kitti")
@@ -121,12 +122,7 @@ class OracleMost(MostStage):
         return ""
 
     def plan(self, ctx: StageContext) -> Plan:
-        align = ctx.manifest("align")
-        return Plan(
-            n_items=align.n_items,
-            max_points=int(align.plan["max_points"]),
-            meta={CLASS_MAP: class_map_of(LM)},
-        )
+        return align_shaped_plan(ctx)
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         from dsnet_core.most.data import SequenceTargets

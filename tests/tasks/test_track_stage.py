@@ -9,40 +9,25 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from dsnet_core.labels import class_map_of, load_label_map
-from storage.contract import ArraySpec
+from dsnet_core.labels import load_label_map
 from storage.run import RunStore
 from tasks.align import AlignStage
-from tasks.base import CLASS_MAP, ItemResult, Plan, Stage, StageConfig, StageContext
-from tasks.fuse import INSTANCES
+from tasks.base import ItemResult, StageContext
 from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
 from tasks.runner import run_stage_plain
 from tasks.stitch import StitchStage
 from tasks.track import TrackStage
 from tests.helpers.kill import kill_track_in_a_copy
+from tests.helpers.stand_ins import FuseStandIn
 
 LM = load_label_map("semantic-kitti")
 
 
-class ScrambledTruth(Stage):
+class ScrambledTruth(FuseStandIn):
     """Stands in for ``fuse``: ground-truth classes and instances, each volume's ids permuted."""
 
-    name = "fuse"
-    upstream = ("align",)
     version = "truth-1"
-    Config = StageConfig
-    item = "volume"
-    arrays = (ArraySpec("sem", "uint8"), ArraySpec("inst", "int32"))
-    tables = (INSTANCES,)
-
-    def plan(self, ctx: StageContext) -> Plan:
-        align = ctx.manifest("align")
-        return Plan(
-            n_items=align.n_items,
-            max_points=int(align.plan["max_points"]),
-            meta={CLASS_MAP: class_map_of(LM)},
-        )
 
     def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
         align = ctx.arrays("align")

@@ -144,27 +144,60 @@ def score_predictions(
 
 
 def print_result(result) -> None:
-    """The PQ family per class, PQ† and the LSTQ family, as tables."""
+    """Every registered metric's values (the official means, then the others, e.g. the means over
+    the classes present), then the per-class values, as tables."""
+    print_scores(
+        f"panoptic scores ({result.frames} frames, mode: {result.mode})", result.values, result.classes
+    )
+
+
+def print_scores(
+    title: str,
+    values: dict[str, float | None],
+    classes: dict[str, dict[str, float]],
+    hidden: frozenset[str] = frozenset(),
+) -> None:
+    """One table of every registered run-level value the scorer returned (grouped by metric, each
+    with what it is) and one of the per-class values (``hidden``: classes the model cannot name)."""
     from rich.console import Console
     from rich.table import Table
 
-    console = Console()
-    p, t = result.panoptic, result.lstq
-    table = Table(title=f"panoptic scores ({result.frames} frames, mode: {result.mode})")
-    for col in ("", "PQ", "SQ", "RQ", "IoU"):
-        table.add_column(col, justify="right")
-    table.add_row("all", _f(p.pq), _f(p.sq), _f(p.rq), _f(p.miou), style="bold")
-    table.add_row("things", _f(p.pq_things), _f(p.sq_things), _f(p.rq_things), _f(t.iou_things))
-    table.add_row("stuff", _f(p.pq_stuff), _f(p.sq_stuff), _f(p.rq_stuff), _f(t.iou_stuff), end_section=True)
-    for name, c in p.per_class.items():
-        table.add_row(name, _f(c.pq), _f(c.sq), _f(c.rq), _f(c.iou))
+    from dsnet_core.metrics.registry import METRICS
+
+    console = Console(width=max(100, Console().width))
+    table = Table(title=title)
+    for col, justify in (("metric", "left"), ("value", "right"), ("what it is", "left")):
+        table.add_column(col, justify=justify)
+    for metric in METRICS.values():
+        shown = [c for c in metric.columns if c.key in values]
+        for i, c in enumerate(shown):
+            table.add_row(c.label, _fmt(c, values[c.key]), c.help, end_section=i == len(shown) - 1)
     console.print(table)
-    summary = Table(title="PQ† and LSTQ")
-    for col in ("PQ†", "LSTQ", "S_assoc", "S_cls"):
-        summary.add_column(col, justify="right")
-    summary.add_row(_f(p.pq_dagger), _f(t.lstq), _f(t.s_assoc), _f(t.s_cls))
-    console.print(summary)
+    if any(c.key.endswith("_present") for c in _registered() if c.key in values):
+        console.print(
+            "(present): mean over the classes with ground-truth points in the frames scored; the official "
+            "means count every absent class as 0."
+        )
+    cols = [c for c in _registered("class") if any(c.key in row for row in classes.values())]
+    per = Table(title="per class")
+    per.add_column("class")
+    for c in cols:
+        per.add_column(c.label, justify="right")
+    if hidden:
+        per.add_column("model can predict", justify="right")
+    for name, row in classes.items():
+        cells = [_fmt(c, row.get(c.key)) for c in cols]
+        per.add_row(name, *cells, *(["no" if name in hidden else "yes"] if hidden else []))
+    console.print(per)
 
 
-def _f(x: float) -> str:
-    return "n/a" if x != x else f"{100 * x:.1f}"
+def _registered(level: str = "run"):
+    from dsnet_core.metrics.registry import columns
+
+    return columns(level)
+
+
+def _fmt(c, x) -> str:
+    if x is None or x != x:
+        return "n/a"
+    return str(int(x)) if c.kind == "count" else f"{100 * x:.1f}"

@@ -101,3 +101,32 @@ def test_a_registered_metric_reaches_the_score_tables_and_the_dashboard(toy_metr
     assert float(shown["card:valid_share"]) == run["valid_share"]
     assert float(shown["run:0:miou_present"]) == run["miou_present"] and "mIoU (present)" in page
     assert "run:0:pat" not in shown  # a metric the run's scorer does not compute: no row
+
+
+def test_an_export_format_registered_alone_reaches_dsnet_export(tmp_path, synth_log):
+    from flows.export import EXPORTS, ExportFormat, final_labels, register_export
+    from storage.run import RunStore
+    from tests.tasks.oracle_stitch import score_runs
+
+    def write(root, out, sequences, options):
+        counts: dict[str, int] = {}
+        for seq, _, label in final_labels(RunStore(root), sequences):
+            counts[seq] = counts.get(seq, 0) + int(label is not None)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / f"frames.{options['suffix']}").write_text(json.dumps(counts))
+        return counts
+
+    register_export(
+        ExportFormat("frame-counts", write, lambda c: [f"counted {sum(c.values())} frames"], "toy", {"suffix": "json"})
+    )
+    try:
+        (uri,) = score_runs(tmp_path, synth_log, {"runA": 0.0}, bev=0)
+        out = tmp_path / "out"
+        res = CliRunner().invoke(app, ["export", uri, "--out", str(out), "--format", "frame-counts"])
+        assert res.exit_code == 0, res.output
+        assert "counted 12 frames" in res.output
+        assert json.loads((out / "frames.json").read_text()) == {"00": 6, "01": 6}
+        bad = CliRunner().invoke(app, ["export", uri, "--out", str(out), "--format", "nope"])
+        assert bad.exit_code == 2 and "frame-counts" in bad.output
+    finally:
+        EXPORTS.pop("frame-counts")

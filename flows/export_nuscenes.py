@@ -130,6 +130,7 @@ def nuscenes_lines(result: NuScenesExport) -> list[str]:
         out.append(line)
     out.append(f"class mapping {result.mapping['file']} (model classes -> nuScenes challenge classes)")
     out.append(
-        f"wrote nuScenes results to {result.out.resolve()} (devkit: --result_path OUT --eval_set {result.split})"
+        f"wrote nuScenes results to {result.out.resolve()} "
+        f"(devkit: --result_path OUT --eval_set {result.split})"
     )
     return out

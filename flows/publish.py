@@ -5,8 +5,8 @@ without ground truth, and the score report (merged accumulators) where ground tr
 and the dashboard (``ROOT/dashboard.html``). Inside a flow run, a scored run also gets two
 artifacts with stable keys so the Prefect UI shows the latest per dataset:
 ``score-summary-<dataset>`` (markdown: every registered metric's value, the dashboard's location)
-and ``score-classes-<dataset>`` (table: the registered per-class values). The labelling flow's own progress and
-summary artifacts stay as they are.
+and ``score-classes-<dataset>`` (table: the registered per-class values). The labelling flow's own
+progress and summary artifacts stay as they are.
 """
 
 from __future__ import annotations
@@ -96,7 +96,9 @@ def _value(c: Column, v) -> str:
 def brief_line(values: dict[str, Any]) -> str:
     """The brief numbers (``Column.brief`` of the registered metrics) of ``values`` as one line:
     ``PQ 51.2 · mIoU 55.0 · LSTQ 60.1 · mIoU (present) 61.3 · PQ (present) 57.0``."""
-    return " · ".join(f"{c.label} {_value(c, values.get(c.key))}" for c in columns("run") if c.brief and c.key in values)
+    return " · ".join(
+        f"{c.label} {_value(c, values.get(c.key))}" for c in columns("run") if c.brief and c.key in values
+    )
 
 
 def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
@@ -113,7 +115,8 @@ def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
         "|---|---|",
         *(f"| {c.label} | {_value(c, r[c.key])} |" for c in rows),
         "",
-        "(present): mean over the classes with ground-truth points; the official means count absent classes as 0.",
+        "(present): mean over the classes with ground-truth points; the official means count absent "
+        "classes as 0.",
         "",
         f"{r['sequences']} sequences, {r['frames']} frames, {r['points']} points · scoring mode "
         f"`{r['mode']}` · model `{r['model_card'] or '-'}` · config `{r['config_hash']}` · "
@@ -135,7 +138,13 @@ def class_table(report: ScoreReport) -> list[dict[str, Any]]:
             "class": c["class"],
             "kind": c["kind"],
             **{
-                k.label: (None if c.get(k.key) is None else c[k.key] if k.kind == "count" else round(100 * c[k.key], 1))
+                k.label: (
+                    None
+                    if c.get(k.key) is None
+                    else c[k.key]
+                    if k.kind == "count"
+                    else round(100 * c[k.key], 1)
+                )
                 for k in cols
             },
         }

@@ -50,7 +50,8 @@ _FRAME_COUNTS = [
 
 
 def column_type(kind: str) -> pa.DataType:
-    """The table type of a metric column's kind (``score``: float64, NaN where undefined; ``count``: int64)."""
+    """The table type of a metric column's kind (``score``: float64, NaN where undefined;
+    ``count``: int64)."""
     return pa.int64() if kind == "count" else pa.float64()
 
 
@@ -126,7 +127,9 @@ class ScoreStage(Stage):
         except (ConfigError, StoreError):  # no model map yet, or no mapping: plan() says so
             scoring = {}
         mapping = scoring.get("mapping") or {}
-        return f"gt-labels:{gt.name}:{gt.source}:mapping:{mapping.get('sha256', '')}:metrics:{registry_digest()}"
+        return (
+            f"gt-labels:{gt.name}:{gt.source}:mapping:{mapping.get('sha256', '')}:metrics:{registry_digest()}"
+        )
 
     def plan(self, ctx: StageContext) -> Plan:
         table = ctx.frames.to_pydict()

@@ -92,6 +92,7 @@ class PanopticEvaluator:
     @property
     def frames(self) -> int:
         return sum(s["panoptic"].acc.frames for s in self.by_sequence.values())
+
     def add(
         self, gt_label: np.ndarray, pred_label: np.ndarray, frame: str = "", sequence: str = ""
     ) -> FrameRow:

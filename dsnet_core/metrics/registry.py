@@ -146,7 +146,9 @@ def register(metric: Metric) -> Metric:
         for other in METRICS.values():
             if other.name != metric.name and mine & {c.key for c in getattr(other, level)}:
                 clash = sorted(mine & {c.key for c in getattr(other, level)})
-                raise ValueError(f"metric {metric.name!r}: {level} {clash} already reported by {other.name!r}")
+                raise ValueError(
+                    f"metric {metric.name!r}: {level} {clash} already reported by {other.name!r}"
+                )
     METRICS[metric.name] = metric
     return metric
 

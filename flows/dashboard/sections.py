@@ -76,7 +76,9 @@ def headline(runs: list[RunTables]) -> str:
     for c in shown:
         key = c.key
         cells = [f'<td title="{esc(c.help)}">{esc(c.label)}</td>']
-        cells += [cell(_show(c, run.run.get(key)), f"run:{r}:{key}", run.run.get(key)) for r, run in enumerate(runs)]
+        cells += [
+            cell(_show(c, run.run.get(key)), f"run:{r}:{key}", run.run.get(key)) for r, run in enumerate(runs)
+        ]
         for r, run in enumerate(runs[1:], start=1):
             v, base = run.run.get(key), a.get(key)
             diff = None if v is None or base is None else v - base
@@ -100,7 +102,9 @@ def headline(runs: list[RunTables]) -> str:
         meta_rows.append("<tr class='meta'>" + "".join(cells) + "</tr>")
     table = f'<table class="num" id="headline">{head(cols)}<tbody>{"".join(body + meta_rows)}</tbody></table>'
     note = f'<p class="note">{esc(PRESENT_NOTE)}</p>' if any("(present)" in c.label for c in shown) else ""
-    return f'<section id="s-headline"><h2>Headline</h2><div class="cards">{cards}</div>{note}{table}</section>'
+    return (
+        f'<section id="s-headline"><h2>Headline</h2><div class="cards">{cards}</div>{note}{table}</section>'
+    )
 
 
 def sign(v, base) -> str:
@@ -160,7 +164,9 @@ def classes(runs: list[RunTables]) -> str:
 def sequences(runs: list[RunTables]) -> str:
     """Per-sequence numbers of every run (merged accumulators of the sequence)."""
     keys = [("frames", "frames", fmt.count), ("points", "points", fmt.count)]
-    keys += [(c.key, c.label, fmt.count if c.kind == "count" else fmt.score) for c in columns("run") if c.brief]
+    keys += [
+        (c.key, c.label, fmt.count if c.kind == "count" else fmt.score) for c in columns("run") if c.brief
+    ]
     names = sorted({s["sequence"] for run in runs for s in run.sequences})
     by_run = [{s["sequence"]: s for s in run.sequences} for run in runs]
     cols = ["sequence"] + [f"{tag(r)}{n}" for r in range(len(runs)) for _, n, _ in keys]

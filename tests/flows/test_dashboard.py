@@ -9,9 +9,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from dsnet_core.metrics.registry import columns
 from dsnet_core.viz.png import decode_png
 from flows.dashboard import build_dashboard
-from dsnet_core.metrics.registry import columns
 from tests.flows.browser import Browser
 from tests.flows.conftest import REPO, cli
 from tests.tasks.oracle_stitch import score_runs

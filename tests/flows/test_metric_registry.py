@@ -64,7 +64,9 @@ def _log(root) -> tuple:
     rng = np.random.default_rng(1)
     gt_root, pred_root = root / "gt", root / "pred"
     for k in range(2):
-        gt = np.concatenate([np.full(300, 40), np.full(100, 10 | (1 << 16)), np.full(100, 0)]).astype(np.uint32)
+        gt = np.concatenate([np.full(300, 40), np.full(100, 10 | (1 << 16)), np.full(100, 0)]).astype(
+            np.uint32
+        )
         gt = gt[rng.permutation(gt.size)]
         write_frame(gt_root / "sequences" / "08", f"{k:06d}", np.zeros((gt.size, 4), np.float32), gt)
         kitti.write_label(pred_root / "sequences" / "08" / "predictions" / f"{k:06d}.label", gt)
@@ -74,11 +76,15 @@ def _log(root) -> tuple:
 def test_a_registered_metric_reaches_eval(toy_metric, tmp_path):
     gt_root, pred_root = _log(tmp_path)
     out = tmp_path / "s.json"
-    res = CliRunner().invoke(app, ["eval", "--gt", str(gt_root), "--pred", str(pred_root), "--json", str(out)])
+    res = CliRunner().invoke(
+        app, ["eval", "--gt", str(gt_root), "--pred", str(pred_root), "--json", str(out)]
+    )
     assert res.exit_code == 0, res.output
     assert "valid share" in res.output and "mIoU (present)" in res.output
     report = json.loads(out.read_text())
-    assert report["valid_share"] == pytest.approx(0.8) and report["pq"] == pytest.approx(2 / 19)  # 2 of 19 classes
+    assert report["valid_share"] == pytest.approx(0.8) and report["pq"] == pytest.approx(
+        2 / 19
+    )  # 2 of 19 classes
     assert report["miou_present"] == 1.0 and report["present_classes"] == 2
 
 
@@ -117,7 +123,9 @@ def test_an_export_format_registered_alone_reaches_dsnet_export(tmp_path, synth_
         return counts
 
     register_export(
-        ExportFormat("frame-counts", write, lambda c: [f"counted {sum(c.values())} frames"], "toy", {"suffix": "json"})
+        ExportFormat(
+            "frame-counts", write, lambda c: [f"counted {sum(c.values())} frames"], "toy", {"suffix": "json"}
+        )
     )
     try:
         (uri,) = score_runs(tmp_path, synth_log, {"runA": 0.0}, bev=0)

@@ -39,7 +39,9 @@ def test_golden_values_by_hand(scored):
     assert v["present_classes"] == 3
     assert v["miou_present"] == pytest.approx((1 + 0.75 + 0.8) / 3, abs=1e-12)
     assert v["pq_present"] == pytest.approx(0.85, abs=1e-12)
-    assert v["sq_present"] == pytest.approx(0.85, abs=1e-12) and v["rq_present"] == pytest.approx(1.0, abs=1e-12)
+    assert v["sq_present"] == pytest.approx(0.85, abs=1e-12) and v["rq_present"] == pytest.approx(
+        1.0, abs=1e-12
+    )
     # the official means divide the same sums by all 19 classes (absent ones, sidewalk and
     # vegetation with their false positives included, count 0)
     assert v["miou"] == pytest.approx(2.55 / 19, abs=1e-12) and v["pq"] == pytest.approx(2.55 / 19, abs=1e-12)
@@ -63,14 +65,20 @@ def test_present_means_are_the_official_per_class_values_averaged(kitti):
     present = [n for n, c in res.classes.items() if c["gt_points"] > 0]
     assert 0 < len(present) < 19
     per = res.panoptic.per_class
-    for key, attr in (("miou_present", "iou"), ("pq_present", "pq"), ("sq_present", "sq"), ("rq_present", "rq")):
+    for key, attr in (
+        ("miou_present", "iou"),
+        ("pq_present", "pq"),
+        ("sq_present", "sq"),
+        ("rq_present", "rq"),
+    ):
         assert res.values[key] == pytest.approx(np.mean([getattr(per[n], attr) for n in present]), abs=1e-12)
     assert res.values["miou_present"] >= res.values["miou"]
 
 
 def test_plain_function_by_name_and_by_array():
     got = present_class_means(
-        {"car": 1.0, "road": 0.75, "building": 0.8, "sidewalk": 0.0}, {"car": 100, "road": 200, "building": 100}
+        {"car": 1.0, "road": 0.75, "building": 0.8, "sidewalk": 0.0},
+        {"car": 100, "road": 200, "building": 100},
     )
     assert got == pytest.approx({"miou_present": 0.85, "present_classes": 3.0}, abs=1e-12)
     arr = present_class_means(np.array([0.5, 0.2, 0.0]), np.array([3, 0, 0]), pq=np.array([0.4, 0.0, 0.0]))

@@ -15,16 +15,14 @@ A ``.label`` is uint32 per point in the scan's own order: raw semantic id of the
 (``learning_map_inv``) | instance << 16. Frame names come from the ingest frame table (a folder
 scan's stem, a bag message's stamp). Plain functions: no Prefect.
 
-Formats are found in one registry (:data:`EXPORTS`, :func:`register_export`): a name, a writer, the
-lines the command prints, and the options the writer takes. ``dsnet export`` only looks a format up.
+The formats are registered in :mod:`flows.export_formats`, which ``dsnet export`` looks them up in.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -206,113 +204,3 @@ class _SourcePoints:
         full = np.zeros(keep.shape[0], dtype=np.uint32)
         full[keep] = label
         return full
-
-
-@dataclass(frozen=True)
-class ExportFormat:
-    """One output format of ``dsnet export``.
-
-    Attributes:
-        name: the ``--format`` name (an input format's name where they correspond).
-        write: ``write(root, out, sequences, options) -> summary`` (``options``: this format's,
-            defaults filled in).
-        lines: ``lines(summary) -> list[str]``: what the command prints after writing.
-        help: one line for ``--help`` and errors.
-        options: the options the writer takes, with their defaults (``--split`` for nuscenes).
-    """
-
-    name: str
-    write: Callable[..., Any]
-    lines: Callable[[Any], list[str]]
-    help: str
-    options: dict[str, Any] = field(default_factory=dict)
-
-
-EXPORTS: dict[str, ExportFormat] = {}
-
-
-def register_export(fmt: ExportFormat) -> ExportFormat:
-    """Add (or replace) an export format."""
-    EXPORTS[fmt.name] = fmt
-    return fmt
-
-
-def export(
-    root: str, out: str | Path, format: str, sequences: list[str] | None = None, **options: Any
-) -> tuple[ExportFormat, Any]:
-    """Export through the registered ``format`` (options it does not take are dropped).
-
-    Raises:
-        ValueError: an unknown format (the message lists the registered ones).
-    """
-    if format not in EXPORTS:
-        raise ValueError(f"unknown format {format!r} (available: {', '.join(EXPORTS)})")
-    fmt = EXPORTS[format]
-    opts = {k: options[k] if options.get(k) is not None else v for k, v in fmt.options.items()}
-    return fmt, fmt.write(root, out, sequences, opts)
-
-
-def summary_lines(summary: ExportSummary, where: Path, name: str) -> list[str]:
-    """Per sequence the files written (and those missing or swept), then where."""
-    out = []
-    for seq, n in summary.frames.items():
-        line = f"sequence {seq}: {n} label files"
-        missing = summary.missing[seq]
-        if missing:
-            line += f" ({len(missing)} frames without a label: {', '.join(missing[:5])})"
-        removed = summary.removed.get(seq)
-        if removed:
-            line += (
-                f"; removed {len(removed)} .label files an earlier export left for frames this export does "
-                f"not write: {', '.join(removed[:5])}{', …' if len(removed) > 5 else ''}"
-            )
-        out.append(line)
-    out.append(f"wrote {name} labels to {where}")
-    return out
-
-
-def _nuscenes(root: str, out: str | Path, sequences: list[str] | None, options: dict[str, Any]):
-    from flows.export_nuscenes import export_nuscenes
-
-    return export_nuscenes(root, out, sequences, options["split"])
-
-
-def _nuscenes_lines(result) -> list[str]:
-    from flows.export_nuscenes import nuscenes_lines
-
-    return nuscenes_lines(result)
-
-
-register_export(
-    ExportFormat(
-        "semantickitti",
-        lambda root, out, seqs, _: export_semantickitti(root, out, seqs),
-        lambda s: summary_lines(s, s.out.resolve() / "sequences", "semantickitti"),
-        ".label files in sequences/SS/predictions/",
-    )
-)
-register_export(
-    ExportFormat(
-        "nuscenes",
-        _nuscenes,
-        _nuscenes_lines,
-        "lidarseg/ and panoptic/ results by sample_data token (a run of a nuScenes log)",
-        {"split": "val"},
-    )
-)
-for _name, _help in (("folder", "SEQ/<scan name>.label"), ("rosbag", "BAG/<stamp ns>.label")):
-    register_export(
-        ExportFormat(
-            _name,
-            lambda root, out, seqs, _: export_frames(root, out, seqs),
-            lambda s, _name=_name: summary_lines(s, s.out.resolve(), _name),
-            _help,
-        )
-    )
-
-
-def default_export_format(root: str, storage_options: dict | None = None) -> str:
-    """The format a run exports in by default: its log's (``semantickitti`` for a run of an
-    unregistered format, or one recorded before formats existed)."""
-    fmt = read_run(RunStore(root, storage_options)).format
-    return fmt if fmt in EXPORTS else "semantickitti"

@@ -102,7 +102,7 @@ def print_nuscenes(scorer) -> None:
     the classes the model can express), then per class, then the mapping."""
     from rich.console import Console
 
-    from flows.commands.eval import print_scores
+    from flows.commands.eval_print import print_scores
 
     res = scorer.result()
     names = scorer.spec.names

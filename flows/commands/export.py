@@ -26,7 +26,7 @@ def export(
 ) -> None:
     """Write the run's final labels in its log's format (or --format): one file per scan, named as
     the log names the scan (frame number, scan file name, message stamp or sample_data token)."""
-    from flows.export import EXPORTS, default_export_format, export
+    from flows.export_formats import EXPORTS, default_export_format, export
 
     seqs = sequences.split(",") if sequences else None
     with errors_exit():

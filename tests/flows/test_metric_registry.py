@@ -110,7 +110,8 @@ def test_a_registered_metric_reaches_the_score_tables_and_the_dashboard(toy_metr
 
 
 def test_an_export_format_registered_alone_reaches_dsnet_export(tmp_path, synth_log):
-    from flows.export import EXPORTS, ExportFormat, final_labels, register_export
+    from flows.export import final_labels
+    from flows.export_formats import EXPORTS, ExportFormat, register_export
     from storage.run import RunStore
     from tests.tasks.oracle_stitch import score_runs
 

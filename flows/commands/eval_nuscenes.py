@@ -108,5 +108,10 @@ def print_nuscenes(scorer) -> None:
     names = scorer.spec.names
     title = f"Panoptic nuScenes ({res.frames} frames, min points {scorer.min_points})"
     print_scores(title, res.values, res.classes, frozenset(names[c] for c in scorer.unexpressible))
-    m = scorer.mapping.record()
-    Console().print(f"class mapping: {m['file']} (sha256 {m['sha256'][:12]})")
+    m, expressible = scorer.mapping.record(), [names[c] for c in scorer.expressible.spec.include]
+    console = Console(width=140)
+    console.print(f"all ({len(scorer.spec.include)}): the challenge classes")
+    console.print(
+        f"expressible ({len(expressible)}): those the model's classes can name ({', '.join(expressible)})"
+    )
+    console.print(f"class mapping: {m['file']} (sha256 {m['sha256'][:12]})")

@@ -93,11 +93,15 @@ def _value(c: Column, v) -> str:
     return str(int(v)) if c.kind == "count" else f"{100 * v:.1f}"
 
 
-def brief_line(values: dict[str, Any]) -> str:
+def brief_line(values: dict[str, Any], bold: bool = False) -> str:
     """The brief numbers (``Column.brief`` of the registered metrics) of ``values`` as one line:
-    ``PQ 51.2 · mIoU 55.0 · LSTQ 60.1 · mIoU (present) 61.3 · PQ (present) 57.0``."""
+    ``PQ 51.2 · mIoU 55.0 · LSTQ 60.1 · mIoU (present) 61.3 · PQ (present) 57.0`` (``bold``: each
+    number in markdown bold)."""
+    mark = "**" if bold else ""
     return " · ".join(
-        f"{c.label} {_value(c, values.get(c.key))}" for c in columns("run") if c.brief and c.key in values
+        f"{mark}{c.label} {_value(c, values.get(c.key))}{mark}"
+        for c in columns("run")
+        if c.brief and c.key in values
     )
 
 
@@ -109,7 +113,7 @@ def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
     lines = [
         f"# Scores · {dataset}",
         "",
-        f"**{brief_line(r)}**",
+        brief_line(r, bold=True),
         "",
         "| metric | value |",
         "|---|---|",
@@ -130,23 +134,18 @@ def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
 
 
 def class_table(report: ScoreReport) -> list[dict[str, Any]]:
-    """Per-class rows for the table artifact: every registered per-class column (fractions in
-    percent with one decimal, counts as they are)."""
+    """Per-class rows for the table artifact: every registered per-class column (fractions under
+    their label in percent with one decimal: ``PQ``, ``IoU``; counts under their key: ``tp``)."""
     cols = columns("class")
+
+    def show(k: Column, v):
+        return v if v is None or k.kind == "count" else round(100 * v, 1)
+
     return [
         {
             "class": c["class"],
             "kind": c["kind"],
-            **{
-                k.label: (
-                    None
-                    if c.get(k.key) is None
-                    else c[k.key]
-                    if k.kind == "count"
-                    else round(100 * c[k.key], 1)
-                )
-                for k in cols
-            },
+            **{k.key if k.kind == "count" else k.label: show(k, c.get(k.key)) for k in cols},
         }
         for c in report.classes
     ]

@@ -26,6 +26,7 @@ from flows.report.label_report import LabelReport, write_label_report
 from flows.report.pictures import bev_rows, legend_rows
 from flows.report.refined import before_evaluators, refine_score_rows
 from flows.report.tables import REPORT_TABLES
+from storage.errors import StoreError
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
 from tasks.run_config import RunConfig, read_run
@@ -52,6 +53,10 @@ def sequence_evaluator(store: RunStore, sequence: str, label_map, model_map=None
     Args:
         label_map: the ground truth's label map.
         model_map: the model's (default: the same; another goes through their class mapping).
+
+    Raises:
+        StoreError: a block state this version does not read (an older layout, or another set of
+            metrics), naming the file.
     """
     m = store.read_manifest(sequence, SCORE)
     if m is None or m.status != "done" or m.n_items == 0:  # not scored, or no ground truth
@@ -59,8 +64,13 @@ def sequence_evaluator(store: RunStore, sequence: str, label_map, model_map=None
     config = ScoreConfig.model_validate(m.config)
     ev = make_evaluator(config, label_map, model_map)
     for items in m.blocks:
-        data = store.read_block_bytes(sequence, SCORE, block_state_name(items[0]))
-        ev.merge(restore_scorer(make_evaluator(config, label_map, model_map), state_from_bytes(data)))
+        name = block_state_name(items[0])
+        data = store.read_block_bytes(sequence, SCORE, name)
+        try:
+            part = restore_scorer(make_evaluator(config, label_map, model_map), state_from_bytes(data))
+        except ValueError as exc:  # a state of another layout or set of metrics: never misread
+            raise StoreError(store.root.url(store.block_bytes_rel(sequence, SCORE, name)), str(exc)) from None
+        ev.merge(part)
     return ev
 
 

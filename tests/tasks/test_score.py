@@ -219,3 +219,35 @@ def test_model_card_id_comes_from_the_model_stage_plan(tmp_path):
     )  # fmt: skip
     store.write_manifest(m)
     assert model_plan(store, dsnet, ["00"])["model_card"] == "tiny-v2@" + "ab" * 6
+
+
+def test_a_block_state_of_another_layout_or_metrics_is_refused_naming_it(oracle_stages, synth_log, tmp_path):
+    from dsnet_core.metrics.registry import METRICS, STATE_FORMAT, register
+    from dsnet_core.metrics.state import state_from_bytes, state_to_bytes
+    from storage.errors import StoreError
+    from tasks.score import ScoreStage, block_state_name
+    from tests.flows.test_metric_registry import TOY
+
+    assert ScoreStage.version == "2" and STATE_FORMAT == "2"
+    store = RunStore(tmp_path / "run")
+    _label(store, synth_log)
+    name = block_state_name(0)
+    state = state_from_bytes(store.read_block_bytes("00", "score", name))
+    old = {k: v for k, v in state.items() if k != "format"}  # as a version-1 block left it: no layout
+    store.write_block_bytes("00", "score", name, state_to_bytes(old))
+    with pytest.raises(
+        StoreError, match=rf"00/score/blocks/{name}: scorer state: layout 1, this version reads"
+    ):
+        write_report(store, P)
+    store.write_block_bytes("00", "score", name, state_to_bytes(state))
+    assert write_report(store, P) is not None  # the state as written restores
+    fp = store.read_manifest("00", "score").fingerprint
+    register(TOY)
+    try:  # a metric registered since the blocks were scored: refused, until the stage reruns
+        with pytest.raises(StoreError, match=r"holds metrics .* the registry now has"):
+            write_report(store, P)
+        _label(store, synth_log, run_id="r2")  # the registered metrics are an input: it rescores
+        assert store.read_manifest("00", "score").fingerprint != fp
+        assert 0 < write_report(store, P, bev_frames=0).run["valid_share"] <= 1
+    finally:
+        METRICS.pop(TOY.name)

@@ -14,6 +14,8 @@ The output formats carry the input formats' names (``dsnet label --format`` and 
 A ``.label`` is uint32 per point in the scan's own order: raw semantic id of the model's label map
 (``learning_map_inv``) | instance << 16. Frame names come from the ingest frame table (a folder
 scan's stem, a bag message's stamp). Plain functions: no Prefect.
+
+The formats are registered in :mod:`flows.export_formats`, which ``dsnet export`` looks them up in.
 """
 
 from __future__ import annotations
@@ -202,14 +204,3 @@ class _SourcePoints:
         full = np.zeros(keep.shape[0], dtype=np.uint32)
         full[keep] = label
         return full
-
-
-EXPORT_FORMATS = ("semantickitti", "nuscenes", "folder", "rosbag")
-"""Output formats: the input formats' names (``nuscenes`` needs a run of a nuScenes log)."""
-
-
-def default_export_format(root: str, storage_options: dict | None = None) -> str:
-    """The format a run exports in by default: its log's (``semantickitti`` for a run of an
-    unregistered format, or one recorded before formats existed)."""
-    fmt = read_run(RunStore(root, storage_options)).format
-    return fmt if fmt in EXPORT_FORMATS else "semantickitti"

@@ -117,3 +117,20 @@ def export_nuscenes(
     meta.parent.mkdir(parents=True, exist_ok=True)
     meta.write_text(json.dumps({"meta": SUBMISSION_META}, indent=1) + "\n")
     return result
+
+
+def nuscenes_lines(result: NuScenesExport) -> list[str]:
+    """What ``dsnet export --format nuscenes`` prints: per scene the files, the mapping, where."""
+    out = []
+    for scene, tokens in result.tokens.items():
+        line = f"scene {scene}: {len(tokens)} lidarseg and panoptic files"
+        missing = result.missing[scene]
+        if missing:
+            line += f" ({len(missing)} sample_data without a label: {', '.join(missing[:3])})"
+        out.append(line)
+    out.append(f"class mapping {result.mapping['file']} (model classes -> nuScenes challenge classes)")
+    out.append(
+        f"wrote nuScenes results to {result.out.resolve()} "
+        f"(devkit: --result_path OUT --eval_set {result.split})"
+    )
+    return out

@@ -4,9 +4,9 @@
 without ground truth, and the score report (merged accumulators) where ground truth was scored —
 and the dashboard (``ROOT/dashboard.html``). Inside a flow run, a scored run also gets two
 artifacts with stable keys so the Prefect UI shows the latest per dataset:
-``score-summary-<dataset>`` (markdown: headline numbers, the dashboard's location) and
-``score-classes-<dataset>`` (table: per-class PQ/SQ/RQ/IoU). The labelling flow's own progress and
-summary artifacts stay as they are.
+``score-summary-<dataset>`` (markdown: every registered metric's value, the dashboard's location)
+and ``score-classes-<dataset>`` (table: the registered per-class values). The labelling flow's own
+progress and summary artifacts stay as they are.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from dsnet_core.metrics.registry import Column, columns
 from flows.dashboard import build_dashboard
 from flows.report import ScoreReport, write_report
 from storage.run import DASHBOARD, RunStore
@@ -86,24 +87,40 @@ def write_dashboard(store: RunStore, others: list[str] | None = None) -> str:
         return store.write_dashboard(page.read_bytes())
 
 
+def _value(c: Column, v) -> str:
+    if v is None:
+        return "–"
+    return str(int(v)) if c.kind == "count" else f"{100 * v:.1f}"
+
+
+def brief_line(values: dict[str, Any], bold: bool = False) -> str:
+    """The brief numbers (``Column.brief`` of the registered metrics) of ``values`` as one line:
+    ``PQ 51.2 · mIoU 55.0 · LSTQ 60.1 · mIoU (present) 61.3 · PQ (present) 57.0`` (``bold``: each
+    number in markdown bold)."""
+    mark = "**" if bold else ""
+    return " · ".join(
+        f"{mark}{c.label} {_value(c, values.get(c.key))}{mark}"
+        for c in columns("run")
+        if c.brief and c.key in values
+    )
+
+
 def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
-    """The markdown summary: headline numbers, scoring mode, model, the dashboard's location."""
+    """The markdown summary: the brief numbers, every registered metric value the run has, scoring
+    mode, model, the dashboard's location."""
     r = report.run
-
-    def pct(key: str) -> str:
-        v = r.get(key)
-        return "–" if v is None else f"{100 * v:.1f}"
-
+    rows = [c for c in columns("run") if r.get(c.key) is not None]
     lines = [
         f"# Scores · {dataset}",
         "",
-        f"**PQ {pct('pq')}** · PQ† {pct('pq_dagger')} · SQ {pct('sq')} · RQ {pct('rq')} · "
-        f"mIoU {pct('miou')} · **LSTQ {pct('lstq')}** (S_assoc {pct('s_assoc')}, S_cls {pct('s_cls')})",
+        brief_line(r, bold=True),
         "",
-        "| | PQ | SQ | RQ |",
-        "|---|---|---|---|",
-        f"| things | {pct('pq_things')} | {pct('sq_things')} | {pct('rq_things')} |",
-        f"| stuff | {pct('pq_stuff')} | {pct('sq_stuff')} | {pct('rq_stuff')} |",
+        "| metric | value |",
+        "|---|---|",
+        *(f"| {c.label} | {_value(c, r[c.key])} |" for c in rows),
+        "",
+        "(present): mean over the classes with ground-truth points; the official means count absent "
+        "classes as 0.",
         "",
         f"{r['sequences']} sequences, {r['frames']} frames, {r['points']} points · scoring mode "
         f"`{r['mode']}` · model `{r['model_card'] or '-'}` · config `{r['config_hash']}` · "
@@ -117,15 +134,18 @@ def summary_markdown(report: ScoreReport, dataset: str, dashboard: str) -> str:
 
 
 def class_table(report: ScoreReport) -> list[dict[str, Any]]:
-    """Per-class rows for the table artifact (percentages, one decimal)."""
+    """Per-class rows for the table artifact: every registered per-class column (fractions under
+    their label in percent with one decimal: ``PQ``, ``IoU``; counts under their key: ``tp``)."""
+    cols = columns("class")
+
+    def show(k: Column, v):
+        return v if v is None or k.kind == "count" else round(100 * v, 1)
+
     return [
         {
             "class": c["class"],
             "kind": c["kind"],
-            **{k.upper() if k != "iou" else "IoU": round(100 * c[k], 1) for k in ("pq", "sq", "rq", "iou")},
-            "tp": c["tp"],
-            "fp": c["fp"],
-            "fn": c["fn"],
+            **{k.key if k.kind == "count" else k.label: show(k, c.get(k.key)) for k in cols},
         }
         for c in report.classes
     ]
@@ -160,5 +180,6 @@ def publish(
             summary_markdown(report, dataset, dashboard), key=f"score-summary-{key}", description=dataset
         )
         create_table_artifact(class_table(report), key=f"score-classes-{key}", description=dataset)
-    headline = {k: report.run[k] for k in ("pq", "sq", "rq", "miou", "lstq", "mode", "frames")}
+    brief = [c.key for c in columns("run") if c.brief]
+    headline = {k: report.run.get(k) for k in (*brief, "mode", "frames")}
     return {"scored": True, "dashboard": dashboard, "headline": headline}

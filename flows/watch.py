@@ -23,7 +23,7 @@ from prefect.states import Completed, Failed
 
 from dsnet_core.errors import DataFormatError
 from flows.label import label
-from flows.publish import dataset_key, publish
+from flows.publish import brief_line, dataset_key, publish
 from flows.request import LabelRequest
 from storage.errors import StoreError
 from storage.run import RunStore
@@ -149,9 +149,7 @@ def _tick_artifact(
         lines.append("")
     if published["scored"]:
         h = published["headline"]
-        lines.append(
-            f"PQ {100 * h['pq']:.1f} · mIoU {100 * h['miou']:.1f} · frames {h['frames']} ({h['mode']})"
-        )
+        lines.append(f"{brief_line(h)} · frames {h['frames']} ({h['mode']})")
         lines.append(f"Dashboard: `{published['dashboard']}`")
     else:
         lines.append("No scores: no ground truth or no score stage in this pipeline yet.")

@@ -29,30 +29,45 @@ from pydantic import Field
 
 from dsnet_core.errors import ConfigError
 from dsnet_core.labels import LabelMap
+from dsnet_core.metrics.registry import columns, registry_digest
 from dsnet_core.metrics.scoring import Scorer, describe_scorer, make_scorer, scorer_state
 from dsnet_core.metrics.state import state_to_bytes
 from storage.contract import TableSpec
 from storage.errors import StoreError
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
 
-FRAME_METRICS = TableSpec(
-    "frame_metrics",
-    pa.schema(
-        [
-            ("index", pa.int32()),  # frame index in the sequence (ingest's)
-            ("frame_id", pa.string()),
-            ("n_points", pa.int64()),  # points of the scan
-            ("n_valid", pa.int64()),  # points whose ground truth is not ignored
-            ("pq", pa.float64()),  # mean over the classes seen in this frame (NaN: none)
-            ("sq", pa.float64()),
-            ("rq", pa.float64()),
-            ("miou", pa.float64()),  # mean over classes with a non-zero union in this frame
-            ("tp", pa.int64()),  # matched segments, all classes
-            ("fp", pa.int64()),
-            ("fn", pa.int64()),
-        ]
-    ),
-)
+_FRAME_FIXED = [
+    ("index", pa.int32()),  # frame index in the sequence (ingest's)
+    ("frame_id", pa.string()),
+    ("n_points", pa.int64()),  # points of the scan
+    ("n_valid", pa.int64()),  # points whose ground truth is not ignored
+]
+_FRAME_COUNTS = [
+    ("tp", pa.int64()),  # matched segments, all classes
+    ("fp", pa.int64()),
+    ("fn", pa.int64()),
+]
+
+
+def column_type(kind: str) -> pa.DataType:
+    """The table type of a metric column's kind (``score``: float64, NaN where undefined;
+    ``count``: int64)."""
+    return pa.int64() if kind == "count" else pa.float64()
+
+
+def frame_metrics_spec() -> TableSpec:
+    """The ``frame_metrics`` table: the frame, then every registered metric's per-frame columns
+    (:func:`dsnet_core.metrics.registry.columns` ``("frame")``: PQ, SQ, RQ over the classes seen
+    in the frame, mIoU over those with a union, the present-class means, ...), then the segment
+    counts. Built from the registry when asked, so a metric registered later has its columns."""
+    metric = [(c.key, column_type(c.kind)) for c in columns("frame")]
+    return TableSpec("frame_metrics", pa.schema([*_FRAME_FIXED, *metric, *_FRAME_COUNTS]))
+
+
+def __getattr__(name: str):
+    if name == "FRAME_METRICS":  # the table of the registry as it is now
+        return frame_metrics_spec()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class ScoreConfig(StageConfig):
@@ -85,10 +100,13 @@ class ScoreStage(Stage):
     """Scores the per-frame ``label`` array of the stage named ``labels``."""
 
     name = "score"
-    version = "1"
+    version = "2"  # 2: block states of the metric registry's layout (1's are refused, not misread)
     Config = ScoreConfig
     item = "frame"
-    tables = (FRAME_METRICS,)
+
+    @property
+    def tables(self) -> tuple[TableSpec, ...]:  # type: ignore[override]
+        return (frame_metrics_spec(),)
 
     def __init__(self, labels: str) -> None:
         self.upstream = (labels,)
@@ -99,7 +117,8 @@ class ScoreStage(Stage):
 
     def inputs(self, ctx: StageContext) -> str:
         """The ground truth's label map (the reader's) and the class mapping from the model's map
-        (its file's sha256, when the maps differ) decide the scores as much as the config."""
+        (its file's sha256, when the maps differ) decide the scores as much as the config, and so do
+        the registered metrics (a metric registered since rescores)."""
         gt = ctx.reader.label_map
         if gt is None:
             return ""
@@ -108,7 +127,9 @@ class ScoreStage(Stage):
         except (ConfigError, StoreError):  # no model map yet, or no mapping: plan() says so
             scoring = {}
         mapping = scoring.get("mapping") or {}
-        return f"gt-labels:{gt.name}:{gt.source}:mapping:{mapping.get('sha256', '')}"
+        return (
+            f"gt-labels:{gt.name}:{gt.source}:mapping:{mapping.get('sha256', '')}:metrics:{registry_digest()}"
+        )
 
     def plan(self, ctx: StageContext) -> Plan:
         table = ctx.frames.to_pydict()

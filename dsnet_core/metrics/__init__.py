@@ -13,6 +13,9 @@ Entry points:
     NuScenesPanopticEvaluator       Panoptic nuScenes PQ family (``read_panoptic_npz``).
     PanopticTrackingAccumulator     Panoptic nuScenes LSTQ/PTQ/sPTQ/TQ/PAT over ``NuScenesCells``.
     pair_label_files                GT/prediction folders paired by file name (``dsnet eval``).
+    registry.METRICS / register     the metrics every scorer computes (``registry.py``): add one
+                                    as a module with one ``register`` call.
+    present_class_means             means over the classes with ground truth (``present.py``).
 """
 
 from .evaluator import PanopticEvaluator
@@ -21,6 +24,7 @@ from .nuscenes import NuScenesCells, NuScenesPanopticEvaluator, read_panoptic_np
 from .nuscenes_track import PanopticTrackingAccumulator, TrackingResult
 from .pairing import LabelPair, pair_label_files
 from .panoptic import PanopticAccumulator, ReferenceOverflowError
+from .present import present_class_means
 from .report import ClassScore, EvalResult, FrameRow, LSTQResult, Mode, PQResult, class_rows, summary_row
 
 __all__ = [
@@ -41,6 +45,7 @@ __all__ = [
     "TrackingResult",
     "class_rows",
     "pair_label_files",
+    "present_class_means",
     "read_panoptic_npz",
     "summary_row",
     "write_panoptic_npz",

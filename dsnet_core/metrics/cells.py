@@ -121,6 +121,18 @@ class CountTable:
         keys, vals = other.items()
         self.add(keys, vals)
 
+    def state(self, key: str) -> dict[str, np.ndarray]:
+        """The table as ``{key}_keys`` / ``{key}_vals`` arrays (copies)."""
+        keys, vals = self.items()
+        return {f"{key}_keys": keys.copy(), f"{key}_vals": vals.copy()}
+
+    @classmethod
+    def from_state(cls, state: dict[str, np.ndarray], key: str) -> CountTable:
+        """The table :meth:`state` saved under ``key``."""
+        table = cls()
+        table.add(state[f"{key}_keys"], state[f"{key}_vals"])
+        return table
+
     def items(self) -> tuple[np.ndarray, np.ndarray]:
         """``(keys (K,) uint64 sorted, values (K,) int64)``."""
         self.compact()
@@ -180,5 +192,34 @@ class ExactSum:
             self.add(p)
 
     @property
+    def partials(self) -> tuple[float, ...]:
+        """The exact state: non-overlapping partials whose exact sum is everything added."""
+        return tuple(self._partials)
+
+    @classmethod
+    def from_partials(cls, partials) -> ExactSum:
+        """A sum holding ``partials`` (from :attr:`partials`), bit for bit."""
+        s = cls()
+        s._partials = [float(x) for x in partials]
+        return s
+
+    @property
     def value(self) -> float:
         return math.fsum(self._partials)
+
+
+def sums_state(sums: list[ExactSum], key: str) -> dict[str, np.ndarray]:
+    """Exact sums as two arrays: ``key`` (every partial, float64) and ``{key}_len`` (int64 counts)."""
+    parts = [s.partials for s in sums]
+    return {
+        key: np.array([x for ps in parts for x in ps], dtype=np.float64),
+        f"{key}_len": np.array([len(ps) for ps in parts], dtype=np.int64),
+    }
+
+
+def sums_from_state(state: dict[str, np.ndarray], key: str) -> list[ExactSum]:
+    """Inverse of :func:`sums_state`."""
+    flat = np.asarray(state[key], dtype=np.float64)
+    ends = np.cumsum(np.asarray(state[f"{key}_len"], dtype=np.int64))
+    starts = np.concatenate(([0], ends[:-1])).astype(np.int64)
+    return [ExactSum.from_partials(flat[a:b]) for a, b in zip(starts, ends, strict=True)]

@@ -14,8 +14,6 @@ class 0 (ignored). ``add_train`` takes already-mapped arrays (train class, insta
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from dsnet_core.labels import LabelMap
@@ -23,12 +21,19 @@ from dsnet_core.labels import LabelMap
 from .cells import Cells, check_labels
 from .decode import ClassSpec, KittiDecoder, TrainDecoder, make_cells, train_labels
 from .lstq import LSTQAccumulator
-from .panoptic import FramePQ, PanopticAccumulator, pq_terms, semantic_iou
+from .panoptic import FramePQ, PanopticAccumulator
+from .registry import Frame, MetricSet, Setup
 from .report import EvalResult, FrameRow, Mode, as_mode
+
+KIND = "semantic-kitti"
 
 
 class PanopticEvaluator:
-    """Streaming SemanticKITTI scorer (PQ family + mIoU + LSTQ), mergeable across workers.
+    """Streaming SemanticKITTI scorer (every registered metric: PQ family, mIoU, LSTQ, ...),
+    mergeable across workers.
+
+    Each sequence's frames go to that sequence's :class:`~.registry.MetricSet`; run-level numbers
+    come from merging them (exact, so equal to one pass over every frame).
 
     Args:
         label_map: the dataset's label map (classes, things/stuff, ``learning_map``).
@@ -38,6 +43,10 @@ class PanopticEvaluator:
         keep_rows: keep one :class:`FrameRow` per frame in :attr:`rows` (memory grows with frames).
         ignore: ignored train ids, the config's ``learning_ignore`` (default: class 0).
     """
+
+    mapping = None  # no class mapping: predictions in the ground truth's own classes
+    unexpressible: frozenset[int] = frozenset()  # every class can be predicted
+    to_truth = None  # labels are already in the ground truth's classes
 
     def __init__(
         self,
@@ -52,16 +61,37 @@ class PanopticEvaluator:
         self.min_points = int(label_map.min_points if min_points is None else min_points)
         self.mode = as_mode(mode)
         self.keep_rows = keep_rows
-        self.panoptic = PanopticAccumulator(self.spec, self.min_points, self.mode)
-        self.lstq = LSTQAccumulator(self.spec, self.min_points, self.mode, variant="4dpls")
+        self.setup = Setup(self.spec, self.min_points, self.mode, KIND)
+        self.by_sequence: dict[str, MetricSet] = {}
+        self._matcher = PanopticAccumulator(self.spec, self.min_points, self.mode)  # measure() only
+        self._total: MetricSet | None = None
         self.rows: list[FrameRow] = []
-        self.by_sequence: dict[str, PanopticAccumulator] = {}
         self._raw = KittiDecoder(label_map)
         self._train = TrainDecoder()
 
     @property
+    def metrics(self) -> MetricSet:
+        """Every sequence's metric set merged (computed when asked, kept until the next change)."""
+        if self._total is None:
+            total = MetricSet(self.setup)
+            for seq in sorted(self.by_sequence):
+                total.merge(self.by_sequence[seq])
+            self._total = total
+        return self._total
+
+    @property
+    def panoptic(self) -> PanopticAccumulator:
+        """The PQ family's accumulator over every sequence (metric ``panoptic``)."""
+        return self.metrics["panoptic"].acc
+
+    @property
+    def lstq(self) -> LSTQAccumulator:
+        """LSTQ's accumulator over every sequence (metric ``lstq``)."""
+        return self.metrics["lstq"].acc
+
+    @property
     def frames(self) -> int:
-        return self.panoptic.frames
+        return sum(s["panoptic"].acc.frames for s in self.by_sequence.values())
 
     def add(
         self, gt_label: np.ndarray, pred_label: np.ndarray, frame: str = "", sequence: str = ""
@@ -105,58 +135,113 @@ class PanopticEvaluator:
         return self._add(make_cells(gt, pred, self._train, self._train), frame, sequence)
 
     def _add(self, cells: Cells, frame: str, sequence: str) -> FrameRow:
-        fpq = self.panoptic.add(cells)
-        self._sequence_pq(str(sequence)).add_frame(fpq)
-        self.lstq.add(cells, sequence)
-        row = frame_row(fpq, self.spec, str(sequence), str(frame), cells.n_points)
+        fpq = self._matcher.measure(cells)
+        values = self._sequence(str(sequence)).add(Frame(cells, str(sequence), fpq))
+        self._total = None
+        row = frame_row(fpq, str(sequence), str(frame), cells.n_points, values)
         if self.keep_rows:
             self.rows.append(row)
         return row
 
     def merge(self, other: PanopticEvaluator) -> PanopticEvaluator:
         """Add ``other``'s state (same label map, min_points, mode) into this one; returns self."""
-        self.panoptic.merge(other.panoptic)
-        self.lstq.merge(other.lstq)
-        for seq, acc in other.by_sequence.items():
-            self._sequence_pq(seq).merge(acc)
+        if other.setup != self.setup:
+            raise ValueError("cannot merge evaluators with different classes, min_points or mode")
+        for seq, metrics in other.by_sequence.items():
+            self._sequence(seq).merge(metrics)
+        self._total = None
         self.rows.extend(other.rows)
         return self
 
     def result(self) -> EvalResult:
         """All metrics so far; idempotent (the state is not modified)."""
-        return EvalResult(self.mode, self.frames, self.panoptic.result(), self.lstq.result())
+        return self._result(self.metrics)
 
     def result_by_sequence(self) -> dict[str, EvalResult]:
         """The same metrics for each sequence alone (sorted by name)."""
-        return {
-            seq: EvalResult(self.mode, acc.frames, acc.result(), self.lstq.result(seq))
-            for seq, acc in sorted(self.by_sequence.items())
-        }
+        return {seq: self._result(self.by_sequence[seq]) for seq in sorted(self.by_sequence)}
 
-    def _sequence_pq(self, sequence: str) -> PanopticAccumulator:
+    def _result(self, metrics: MetricSet) -> EvalResult:
+        pan = metrics["panoptic"].acc
+        return EvalResult(
+            self.mode,
+            pan.frames,
+            pan.result(),
+            metrics["lstq"].acc.result(),
+            values=metrics.values(),
+            classes=metrics.class_values(),
+        )
+
+    def _sequence(self, sequence: str) -> MetricSet:
         if sequence not in self.by_sequence:
-            self.by_sequence[sequence] = PanopticAccumulator(self.spec, self.min_points, self.mode)
+            self.by_sequence[sequence] = MetricSet(self.setup)
         return self.by_sequence[sequence]
 
+    # -- state ------------------------------------------------------------------------------
+    def state(self) -> dict[str, np.ndarray]:
+        """The exact state as named arrays (rows excluded; ``np.savez`` ready).
 
-def frame_row(fpq: FramePQ, spec: ClassSpec, sequence: str, frame: str, n_points: int) -> FrameRow:
-    """One frame's row: PQ over the classes seen in the frame, mIoU over classes with a union."""
-    inc = spec.include
-    sq, rq, pq = pq_terms(fpq.iou_sum, fpq.tp, fpq.fp, fpq.fn)
-    seen = inc[(fpq.tp + fpq.fp + fpq.fn)[inc] > 0]
-    iou, union = semantic_iou(fpq.conf, spec.ignore)
-    has = inc[union[inc] > 0]
-    nan = math.nan
+        Keys: ``kind``, ``min_points``, ``mode``, ``ignore``, the metric set's ``format`` and
+        ``metrics`` (:meth:`~.registry.MetricSet.header`), ``seqs`` (the sequence names) and
+        sequence ``i``'s metric arrays under ``seq{i}/{metric}/*``.
+        """
+        seqs = sorted(self.by_sequence)
+        out: dict[str, np.ndarray] = {
+            "kind": np.array(KIND),
+            "min_points": np.array(self.min_points, dtype=np.int64),
+            "mode": np.array(str(self.mode)),
+            "ignore": np.array(self.spec.ignore, dtype=np.int64),
+            "classes": np.array(self.spec.names, dtype=str),
+            **MetricSet(self.setup).header(),
+            "seqs": np.array(seqs, dtype=str),
+        }
+        for i, seq in enumerate(seqs):
+            out.update(self.by_sequence[seq].state(f"seq{i}/"))
+        return out
+
+    def restore(self, state: dict[str, np.ndarray]) -> PanopticEvaluator:
+        """Load a :meth:`state` into this fresh evaluator (same label map and settings); returns self.
+
+        Raises:
+            ValueError: a state of another layout or set of metrics, another scorer's, or made
+                with other classes, min_points, mode or ignored classes.
+        """
+        MetricSet(self.setup).check(state)  # the layout and the metrics first: an old state says so
+        if str(state.get("kind", "")) != KIND:
+            raise ValueError(f"scorer state: not a {KIND} scorer's (it is {str(state.get('kind', ''))!r})")
+        classes = tuple(str(c) for c in np.asarray(state["classes"]).reshape(-1).tolist())
+        if classes != self.spec.names:
+            raise ValueError(
+                f"scorer state: {len(classes)} classes ({', '.join(classes[:3])}, …), this scorer's "
+                f"label map {self.label_map.name!r} has {self.spec.n_classes}"
+            )
+        got = (int(state["min_points"]), str(state["mode"]), tuple(int(i) for i in state["ignore"]))
+        if got != (self.min_points, str(self.mode), self.spec.ignore):
+            raise ValueError(
+                f"scorer state: scored with min_points, mode, ignore {got}, this scorer has "
+                f"{(self.min_points, str(self.mode), self.spec.ignore)}"
+            )
+        for i, seq in enumerate(np.asarray(state["seqs"]).reshape(-1).tolist()):
+            self._sequence(str(seq)).restore(state, f"seq{i}/")
+        self._total = None
+        return self
+
+
+def frame_row(fpq: FramePQ, sequence: str, frame: str, n_points: int, values: dict[str, float]) -> FrameRow:
+    """One frame's row: its segment counts and every metric's per-frame ``values`` (``pq``, ``sq``,
+    ``rq`` over the classes seen in the frame and ``miou`` over those with a union: ``panoptic``'s)."""
+    nan = float("nan")
     return FrameRow(
         sequence=sequence,
         frame=frame,
         n_points=int(n_points),
         n_valid=int(fpq.n_valid),
-        pq=float(pq[seen].mean()) if seen.size else nan,
-        sq=float(sq[seen].mean()) if seen.size else nan,
-        rq=float(rq[seen].mean()) if seen.size else nan,
-        miou=float(iou[has].mean()) if has.size else nan,
+        pq=values.get("pq", nan),
+        sq=values.get("sq", nan),
+        rq=values.get("rq", nan),
+        miou=values.get("miou", nan),
         tp=int(fpq.tp.sum()),
         fp=int(fpq.fp.sum()),
         fn=int(fpq.fn.sum()),
+        values=dict(values),
     )

@@ -56,6 +56,23 @@ class _SeqTables:
         self.tubes.merge(other.tubes)
         self.inter.merge(other.inter)
 
+    def state(self, prefix: str) -> dict[str, np.ndarray]:
+        out = {f"{prefix}conf": self.conf.copy()}
+        for name in _TABLES:
+            out.update(getattr(self, name).state(f"{prefix}{name}"))
+        return out
+
+    @classmethod
+    def from_state(cls, n_classes: int, state: dict[str, np.ndarray], prefix: str) -> _SeqTables:
+        t = cls(n_classes)
+        t.conf[:] = state[f"{prefix}conf"]
+        for name in _TABLES:
+            setattr(t, name, CountTable.from_state(state, f"{prefix}{name}"))
+        return t
+
+
+_TABLES = ("preds", "tubes", "inter")
+
 
 class LSTQAccumulator:
     """Accumulates the association tables and the semantic confusion matrix.
@@ -165,6 +182,27 @@ class LSTQAccumulator:
         for seq, tables in other.seqs.items():
             self.seqs.setdefault(seq, _SeqTables(self.spec.n_classes)).merge(tables)
         self.frames += other.frames
+        return self
+
+    # -- state --------------------------------------------------------------------------------
+    def state(self, prefix: str = "") -> dict[str, np.ndarray]:
+        """The exact state as named arrays under ``prefix``: frames, the sequence names (sorted)
+        and each sequence's tables under ``{prefix}{i}_``."""
+        seqs = sorted(self.seqs)
+        out = {
+            f"{prefix}frames": np.array(self.frames, dtype=np.int64),
+            f"{prefix}seqs": np.array(seqs, dtype=str),
+        }
+        for i, seq in enumerate(seqs):
+            out.update(self.seqs[seq].state(f"{prefix}{i}_"))
+        return out
+
+    def restore(self, state: dict[str, np.ndarray], prefix: str = "") -> LSTQAccumulator:
+        """Load a :meth:`state` of an accumulator with the same settings; returns self."""
+        self.frames = int(state[f"{prefix}frames"])
+        c = self.spec.n_classes
+        for i, seq in enumerate(np.asarray(state[f"{prefix}seqs"]).reshape(-1).tolist()):
+            self.seqs[str(seq)] = _SeqTables.from_state(c, state, f"{prefix}{i}_")
         return self
 
     # -- results --------------------------------------------------------------------------

@@ -21,7 +21,6 @@ A scene's frames must be added in time order; chunks of a scene merge in order (
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,9 +30,11 @@ from dsnet_core.labels import LabelMap
 from .cells import Cells, check_labels
 from .decode import ClassSpec, make_cells
 from .evaluator import frame_row
+from .metric_nuscenes import NUSCENES, ClassSet
 from .nuscenes import NUSCENES_MIN_POINTS, NuScenesGtDecoder
-from .nuscenes_track import PanopticTrackingAccumulator, TrackingResult
+from .nuscenes_track import TrackingResult
 from .panoptic import PanopticAccumulator
+from .registry import Frame, MetricSet, Setup
 from .report import EvalResult, FrameRow, Mode
 
 _CLASS_BITS = 5  # challenge classes < 32: a predicted cell label is instance << 5 | class
@@ -49,27 +50,6 @@ class _PredDecoder:
         return labels.astype(np.int64)
 
 
-@dataclass
-class ClassSet:
-    """The accumulators of one set of scored classes."""
-
-    spec: ClassSpec
-    seg: PanopticAccumulator  # PanopticEval: PQ family, mIoU (float64 IoUs)
-    track: PanopticTrackingAccumulator  # PanopticTrackingEval: LSTQ, PTQ, sPTQ, TQ, PAT
-
-    @classmethod
-    def make(cls, spec: ClassSpec, min_points: int) -> ClassSet:
-        return cls(
-            spec,
-            PanopticAccumulator(spec, min_points, Mode.OFFICIAL),
-            PanopticTrackingAccumulator(spec, min_points),
-        )
-
-    def merge(self, other: ClassSet) -> None:
-        self.seg.merge(other.seg)
-        self.track.merge(other.track)
-
-
 class NuScenesScorer:
     """Panoptic nuScenes scores of predictions in another label map, through a class mapping.
 
@@ -79,7 +59,9 @@ class NuScenesScorer:
         min_points: minimum segment size (nuScenes: 15).
 
     Attributes:
-        all: the 16 challenge classes. ``expressible``: those the mapping reaches.
+        metrics: every registered metric for Panoptic nuScenes over the 16 challenge classes
+            (``panoptic``, ``lstq`` of the nuScenes variant, ``nuscenes_tracking``, ...), and
+            ``expressible``: the same over the classes the mapping reaches.
     """
 
     mode = Mode.OFFICIAL
@@ -96,8 +78,10 @@ class NuScenesScorer:
         self.min_points = int(min_points)
         spec = ClassSpec.from_label_map(label_map, label_map.ignore)
         hidden = tuple(sorted({*spec.ignore, *mapping.unexpressible}))
-        self.all = ClassSet.make(spec, self.min_points)
-        self.expressible = ClassSet.make(ClassSpec.from_label_map(label_map, hidden), self.min_points)
+        self._spec = spec
+        expressible = ClassSpec.from_label_map(label_map, hidden)
+        self.metrics = MetricSet(Setup(spec, self.min_points, Mode.OFFICIAL, NUSCENES, expressible))
+        self._matcher = PanopticAccumulator(spec, self.min_points, Mode.OFFICIAL)  # measure() only
         self._gt = NuScenesGtDecoder(label_map)
         self._pred = _PredDecoder()
         challenge = label_map.lut(label_map.max_raw_id + 1, fill=0).astype(np.int64)
@@ -107,15 +91,30 @@ class NuScenesScorer:
     # the interface the score stage and the report share with PanopticEvaluator
     @property
     def spec(self) -> ClassSpec:
-        return self.all.spec
+        return self._spec
 
     @property
     def panoptic(self) -> PanopticAccumulator:
-        return self.all.seg
+        return self.metrics["panoptic"].acc
+
+    @property
+    def expressible(self) -> ClassSet:
+        """The accumulators over the classes the mapping reaches (metric ``expressible``)."""
+        return self.metrics["expressible"]
 
     @property
     def frames(self) -> int:
-        return self.all.seg.frames
+        return self.panoptic.frames
+
+    @property
+    def unexpressible(self) -> frozenset[int]:
+        """Challenge classes the model's classes cannot name (scored in ``all`` only)."""
+        return frozenset(int(c) for c in self.mapping.unexpressible)
+
+    @property
+    def to_truth(self):
+        """Model labels -> the ground truth's classes (the mapping's ``map_labels``)."""
+        return self.mapping.map_labels
 
     def add(
         self, gt_label: np.ndarray, pred_label: np.ndarray, frame: str = "", sequence: str = ""
@@ -152,40 +151,78 @@ class NuScenesScorer:
         return self._add(cells, str(frame), str(sequence))
 
     def _add(self, cells: Cells, frame: str, sequence: str) -> FrameRow:
-        fpq = self.all.seg.add(cells)
-        self.all.track.add(cells, sequence)
-        self.expressible.seg.add(cells)
-        self.expressible.track.add(cells, sequence)
-        return frame_row(fpq, self.spec, sequence, frame, cells.n_points)
+        fpq = self._matcher.measure(cells)
+        values = self.metrics.add(Frame(cells, sequence, fpq))
+        return frame_row(fpq, sequence, frame, cells.n_points, values)
 
     def merge(self, other: NuScenesScorer) -> NuScenesScorer:
         """Append ``other``'s frames (a later chunk of the same scenes, or other scenes)."""
         if other.mapping.sha256 != self.mapping.sha256 or other.min_points != self.min_points:
             raise ValueError("cannot merge nuScenes scorers with different mappings or min_points")
-        self.all.merge(other.all)
-        self.expressible.merge(other.expressible)
+        self.metrics.merge(other.metrics)
+        return self
+
+    # -- state ------------------------------------------------------------------------------
+    def state(self) -> dict[str, np.ndarray]:
+        """The exact state as named arrays: ``kind``, the mapping's sha256, min_points and the
+        metric set's (:meth:`~.registry.MetricSet.state`)."""
+        return {
+            "kind": np.array(NUSCENES),
+            "mapping_sha256": np.array(self.mapping.sha256),
+            "min_points": np.array(self.min_points, dtype=np.int64),
+            **self.metrics.header(),
+            **self.metrics.state(),
+        }
+
+    def restore(self, state: dict[str, np.ndarray]) -> NuScenesScorer:
+        """Load a :meth:`state` into this fresh scorer (same maps, mapping and min_points).
+
+        Raises:
+            ValueError: another layout or set of metrics, not a nuScenes scorer's state, or made
+                with another mapping or min_points.
+        """
+        self.metrics.check(state)
+        if str(state.get("kind", "")) != NUSCENES:
+            raise ValueError(f"not a {NUSCENES} scorer state")
+        if str(state["mapping_sha256"]) != self.mapping.sha256 or int(state["min_points"]) != self.min_points:
+            raise ValueError("the state was scored with another class mapping or min_points")
+        self.metrics.restore(state)
         return self
 
     # -- results ----------------------------------------------------------------------------
     def result(self, classes: str = "all") -> EvalResult:
-        """PQ family and mIoU (``PanopticEval``) with the tracking evaluator's LSTQ."""
+        """PQ family and mIoU (``PanopticEval``) with the tracking evaluator's LSTQ; over all
+        classes, also every registered metric's values."""
+        if classes == "all":
+            return EvalResult(
+                self.mode,
+                self.frames,
+                self.panoptic.result(),
+                self.metrics["lstq"].acc.result(),
+                values=self.metrics.values(),
+                classes=self.metrics.class_values(),
+            )
         s = self._set(classes)
         return EvalResult(self.mode, s.seg.frames, s.seg.result(), s.track.lstq.result())
 
     def tracking(self, classes: str = "all") -> TrackingResult:
         """PAT, TQ, PTQ, sPTQ, LSTQ and the tracking evaluator's own (float32) PQ."""
+        if classes == "all":
+            return self.metrics["nuscenes_tracking"].acc.result()
         return self._set(classes).track.result()
 
     def summary(self) -> dict[str, object]:
-        """JSON-ready (NaN as None): per class set the headline numbers, the per-class scores, and
-        the mapping."""
+        """JSON-ready (NaN as None): per class set the headline numbers, every registered metric's
+        values by key (``scores``), the per-class scores, and the mapping."""
         out: dict[str, object] = {"metric": "panoptic-nuscenes", "min_points": self.min_points}
         for classes in ("all", "expressible"):
             res, tr = self.result(classes), self.tracking(classes)
+            spec = self.spec if classes == "all" else self.expressible.spec
             out[classes] = {
-                "classes": [self.spec.names[c] for c in self._set(classes).spec.include],
+                "classes": [self.spec.names[c] for c in spec.include],
                 **{k: _json(v) for k, v in self._numbers(res, tr).items()},
             }
+        out["scores"] = {k: _json(v) for k, v in self.metrics.values().items()}
         out["frames"] = self.frames
         out["per_class"] = {
             n: {k: _json(v) for k, v in vars(c).items()} for n, c in self.result().panoptic.per_class.items()
@@ -214,9 +251,9 @@ class NuScenesScorer:
         }
 
     def _set(self, classes: str) -> ClassSet:
-        if classes not in ("all", "expressible"):
+        if classes != "expressible":
             raise ValueError(f"classes must be 'all' or 'expressible', got {classes!r}")
-        return self.all if classes == "all" else self.expressible
+        return self.expressible
 
 
 def _json(x: float | int) -> float | int | None:

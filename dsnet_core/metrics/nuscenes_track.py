@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .cells import Cells, CountTable, ExactSum
+from .cells import Cells, CountTable, ExactSum, sums_from_state, sums_state
 from .decode import ClassSpec
 from .lstq import LSTQAccumulator
 from .panoptic import EPS, Matches, PanopticAccumulator, pq_terms
@@ -188,6 +188,48 @@ class PanopticTrackingAccumulator:
                     s.tracks[g] = _Track(t.length, t.switches, t.first, t.last, dict(t.counts))
         return self
 
+    # -- state --------------------------------------------------------------------------------
+    def state(self, prefix: str = "") -> dict[str, np.ndarray]:
+        """The exact state as named arrays under ``prefix`` (scenes and their tracks in insertion
+        order, since TQ sums over them in that order)."""
+        out = {**self.pq.state(f"{prefix}pq_"), f"{prefix}ids": self.ids.copy()}
+        out.update(sums_state(self._soft, f"{prefix}soft"))
+        out.update(self.lstq.state(f"{prefix}lstq_"))
+        scenes = list(self.scenes)
+        out[f"{prefix}scenes"] = np.array(scenes, dtype=str)
+        for i, name in enumerate(scenes):
+            s, key = self.scenes[name], f"{prefix}scene{i}_"
+            out.update(_matches_state(s.first, f"{key}first"))
+            out.update(_matches_state(s.last, f"{key}last"))
+            out.update(s.pred_frames.state(f"{key}pf"))
+            gts = list(s.tracks)
+            tracks = [s.tracks[g] for g in gts]
+            out[f"{key}tracks"] = np.array(
+                [[g, t.length, t.switches, t.first, t.last] for g, t in zip(gts, tracks, strict=True)],
+                dtype=np.int64,
+            ).reshape(-1, 5)
+            counts = [(j, k, v) for j, t in enumerate(tracks) for k, v in sorted(t.counts.items())]
+            out[f"{key}counts"] = np.array(counts, dtype=np.int64).reshape(-1, 3)
+        return out
+
+    def restore(self, state: dict[str, np.ndarray], prefix: str = "") -> PanopticTrackingAccumulator:
+        """Load a :meth:`state` into this (fresh) accumulator of the same classes; returns self."""
+        self.pq.restore(state, f"{prefix}pq_")
+        self.ids[:] = state[f"{prefix}ids"]
+        self._soft = sums_from_state(state, f"{prefix}soft")
+        self.lstq.restore(state, f"{prefix}lstq_")
+        for i, name in enumerate(np.asarray(state[f"{prefix}scenes"]).reshape(-1).tolist()):
+            key = f"{prefix}scene{i}_"
+            s = _Scene(_restore_matches(state, f"{key}first"), _restore_matches(state, f"{key}last"))
+            s.pred_frames = CountTable.from_state(state, f"{key}pf")
+            rows = np.asarray(state[f"{key}tracks"]).reshape(-1, 5).tolist()
+            tracks = [_Track(int(n), int(sw), int(a), int(b), {}) for _, n, sw, a, b in rows]
+            for j, k, v in np.asarray(state[f"{key}counts"]).reshape(-1, 3).tolist():
+                tracks[j].counts[int(k)] = int(v)
+            s.tracks = {int(r[0]): t for r, t in zip(rows, tracks, strict=True)}
+            self.scenes[str(name)] = s
+        return self
+
     # -- results --------------------------------------------------------------------------
     def tq(self) -> float:
         """Mean tracking quality over ground-truth instance tracks (NaN without any)."""
@@ -239,6 +281,18 @@ class PanopticTrackingAccumulator:
             per_class_ptq={spec.names[k]: float(ptq_all[k]) for k in inc},
             per_class_sptq={spec.names[k]: float(sptq_all[k]) for k in inc},
         )
+
+
+def _matches_state(m: Matches | None, key: str) -> dict[str, np.ndarray]:
+    if m is None:
+        return {}
+    return {f"{key}_{f}": np.asarray(getattr(m, f)).copy() for f in ("cls", "gt", "pred", "iou")}
+
+
+def _restore_matches(state: dict[str, np.ndarray], key: str) -> Matches | None:
+    if f"{key}_cls" not in state:
+        return None
+    return Matches(*(np.asarray(state[f"{key}_{f}"]) for f in ("cls", "gt", "pred", "iou")))
 
 
 def _copy_scene(o: _Scene) -> _Scene:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cells import Cells, ExactSum
+from .cells import Cells, ExactSum, sums_from_state, sums_state
 from .decode import ClassSpec
 from .report import ClassScore, Mode, PQResult, as_mode
 
@@ -87,6 +87,12 @@ class PanopticAccumulator:
     # -- accumulation ---------------------------------------------------------------------
     def add(self, cells: Cells) -> FramePQ:
         """Add one frame given its cells; returns that frame's own counts."""
+        frame = self.measure(cells)
+        self.add_frame(frame)
+        return frame
+
+    def measure(self, cells: Cells) -> FramePQ:
+        """One frame's counts (matching, confusion) without adding them (the state is unchanged)."""
         c = self.spec.n_classes
         if cells.count.size and (max(cells.gt_cls.max(), cells.pred_cls.max()) >= c):
             raise ValueError(f"class ids must be < {c}")
@@ -94,9 +100,7 @@ class PanopticAccumulator:
         conf = conf.astype(np.int64).reshape(c, c)
         cl = cells.select(~self._ignored[cells.gt_cls])
         tp, fp, fn, iou_sum, matches = self._match(cl)
-        frame = FramePQ(tp, fp, fn, iou_sum, conf, cl.n_points, matches)
-        self.add_frame(frame)
-        return frame
+        return FramePQ(tp, fp, fn, iou_sum, conf, cl.n_points, matches)
 
     def add_frame(self, frame: FramePQ) -> None:
         """Add a frame's counts computed by another accumulator with the same settings."""
@@ -166,6 +170,35 @@ class PanopticAccumulator:
         for mine, theirs in zip(self._iou, other._iou, strict=True):
             mine.merge(theirs)
         self.frames += other.frames
+        return self
+
+    # -- state --------------------------------------------------------------------------------
+    def state(self, prefix: str = "") -> dict[str, np.ndarray]:
+        """The exact state as named arrays under ``prefix`` (``np.savez`` ready)."""
+        return {
+            f"{prefix}conf": self.conf.copy(),
+            f"{prefix}tp": self.tp.copy(),
+            f"{prefix}fp": self.fp.copy(),
+            f"{prefix}fn": self.fn.copy(),
+            **sums_state(self._iou, f"{prefix}partials"),
+            f"{prefix}frames": np.array(self.frames, dtype=np.int64),
+        }
+
+    def restore(self, state: dict[str, np.ndarray], prefix: str = "") -> PanopticAccumulator:
+        """Load a :meth:`state` of an accumulator with the same classes; returns self.
+
+        Raises:
+            ValueError: the state has another number of classes.
+        """
+        conf = np.asarray(state[f"{prefix}conf"])
+        if conf.shape != self.conf.shape:
+            raise ValueError(f"state has {conf.shape[0]} classes, label map {self.conf.shape[0]}")
+        self.conf[:] = conf
+        self.tp[:] = state[f"{prefix}tp"]
+        self.fp[:] = state[f"{prefix}fp"]
+        self.fn[:] = state[f"{prefix}fn"]
+        self._iou = sums_from_state(state, f"{prefix}partials")
+        self.frames = int(state[f"{prefix}frames"])
         return self
 
     # -- results --------------------------------------------------------------------------

@@ -99,33 +99,50 @@ class FrameRow:
     tp: int
     fp: int
     fn: int
+    values: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, object]:
-        return asdict(self)
+        """The fields, every registered metric's per-frame value (``values``) as a field too."""
+        out = asdict(self)
+        values = out.pop("values")
+        return {**out, **values}
 
 
 @dataclass(frozen=True)
 class EvalResult:
-    """Everything ``dsnet eval`` reports: PQ family, mIoU, LSTQ family, frames scored, mode."""
+    """Everything ``dsnet eval`` reports: PQ family, mIoU, LSTQ family, frames scored, mode.
+
+    ``values`` holds every registered metric's run-level values (:mod:`.registry`, official ones
+    included) and ``classes`` their per-class values; both are empty for the per-sequence results
+    of :meth:`~.evaluator.PanopticEvaluator.result_by_sequence`, which hold the PQ family and LSTQ.
+    """
 
     mode: Mode
     frames: int
     panoptic: PQResult
     lstq: LSTQResult
+    values: dict[str, float] = field(default_factory=dict)
+    classes: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def scores(self) -> dict[str, float]:
+        """The run-level values by key: ``values``, or the PQ family's and LSTQ's fields without."""
+        if self.values:
+            return dict(self.values)
+        p, t = asdict(self.panoptic), asdict(self.lstq)
+        out = {k: v for k, v in p.items() if isinstance(v, float)}
+        out.update({k: v for k, v in t.items() if isinstance(v, float)})
+        return out
 
     def to_dict(self) -> dict[str, object]:
-        """The JSON object of ``dsnet eval --json`` (a published interface; NaN/inf become null)."""
-        p, t = self.panoptic, self.lstq
+        """The JSON object of ``dsnet eval --json`` (a published interface; NaN/inf become null):
+        ``mode``, every run-level value by key, ``per_class`` (each class's fractions: PQ, SQ, RQ,
+        IoU and any other metric's), ``frames``."""
         out: dict[str, object] = {"mode": str(self.mode)}
-        for key in ("pq", "pq_dagger", "sq", "rq", "pq_things", "sq_things", "rq_things"):
-            out[key] = _json_float(getattr(p, key))
-        for key in ("pq_stuff", "sq_stuff", "rq_stuff", "miou"):
-            out[key] = _json_float(getattr(p, key))
-        for key in ("lstq", "s_assoc", "s_cls", "iou_stuff", "iou_things"):
-            out[key] = _json_float(getattr(t, key))
+        out.update({k: _json_float(v) for k, v in self.scores().items()})
+        classes = self.classes or {n: asdict(c) for n, c in self.panoptic.per_class.items()}
         out["per_class"] = {
-            name: {k: _json_float(getattr(c, k)) for k in ("pq", "sq", "rq", "iou")}
-            for name, c in p.per_class.items()
+            name: {k: _json_float(v) for k, v in row.items() if isinstance(v, float)}
+            for name, row in classes.items()
         }
         out["frames"] = self.frames
         return out

@@ -56,33 +56,27 @@ def make_scorer(
 
 
 def describe_scorer(scorer: Scorer) -> dict[str, Any]:
-    """What a run records of how it scored: the metric family, min_points and the class mapping."""
-    if isinstance(scorer, NuScenesScorer):
-        return {
-            "metric": "panoptic-nuscenes",
-            "min_points": scorer.min_points,
-            "mapping": scorer.mapping.record(),
-        }
-    return {"metric": scorer.label_map.name, "min_points": scorer.min_points, "mapping": None}
+    """What a run records of how it scored: the metric family, min_points, the class mapping and
+    the metrics computed (the registry's that apply)."""
+    mapping = scorer.mapping
+    return {
+        "metric": scorer.label_map.name,
+        "min_points": scorer.min_points,
+        "mapping": mapping.record() if mapping is not None else None,
+        "metrics": [m.name for m in scorer.metrics.metrics()],
+    }
 
 
 def scorer_state(scorer: Scorer) -> dict[str, np.ndarray]:
-    """A scorer's accumulator state as named arrays (``np.savez`` ready)."""
-    if isinstance(scorer, NuScenesScorer):
-        from .nuscenes_state import scorer_state as nuscenes_state
-
-        return nuscenes_state(scorer)
-    from .state import evaluator_state
-
-    return evaluator_state(scorer)
+    """A scorer's accumulator state as named arrays (``np.savez`` ready): its ``state()``."""
+    return scorer.state()
 
 
 def restore_scorer(fresh: Scorer, state: dict[str, np.ndarray]) -> Scorer:
-    """A scorer like ``fresh`` (same maps and settings) holding ``state``, ready to merge."""
-    if isinstance(fresh, NuScenesScorer):
-        from .nuscenes_state import restore_scorer as restore_nuscenes
+    """``fresh`` (a new scorer with the same maps and settings) holding ``state``, ready to merge.
 
-        return restore_nuscenes(fresh, state)
-    from .state import restore_evaluator
-
-    return restore_evaluator(fresh.label_map, state)
+    Raises:
+        ValueError: the state's layout (one from before the metric registry), metrics, kind or
+            settings do not fit: score the frames again.
+    """
+    return fresh.restore(state)

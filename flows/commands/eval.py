@@ -144,27 +144,10 @@ def score_predictions(
 
 
 def print_result(result) -> None:
-    """The PQ family per class, PQ† and the LSTQ family, as tables."""
-    from rich.console import Console
-    from rich.table import Table
+    """Every registered metric's values (the official means, then the others, e.g. the means over
+    the classes present), then the per-class values, as tables."""
+    from flows.commands.eval_print import print_scores
 
-    console = Console()
-    p, t = result.panoptic, result.lstq
-    table = Table(title=f"panoptic scores ({result.frames} frames, mode: {result.mode})")
-    for col in ("", "PQ", "SQ", "RQ", "IoU"):
-        table.add_column(col, justify="right")
-    table.add_row("all", _f(p.pq), _f(p.sq), _f(p.rq), _f(p.miou), style="bold")
-    table.add_row("things", _f(p.pq_things), _f(p.sq_things), _f(p.rq_things), _f(t.iou_things))
-    table.add_row("stuff", _f(p.pq_stuff), _f(p.sq_stuff), _f(p.rq_stuff), _f(t.iou_stuff), end_section=True)
-    for name, c in p.per_class.items():
-        table.add_row(name, _f(c.pq), _f(c.sq), _f(c.rq), _f(c.iou))
-    console.print(table)
-    summary = Table(title="PQ† and LSTQ")
-    for col in ("PQ†", "LSTQ", "S_assoc", "S_cls"):
-        summary.add_column(col, justify="right")
-    summary.add_row(_f(p.pq_dagger), _f(t.lstq), _f(t.s_assoc), _f(t.s_cls))
-    console.print(summary)
-
-
-def _f(x: float) -> str:
-    return "n/a" if x != x else f"{100 * x:.1f}"
+    print_scores(
+        f"panoptic scores ({result.frames} frames, mode: {result.mode})", result.values, result.classes
+    )

@@ -98,33 +98,20 @@ def _check_size(path: Path, pred: np.ndarray, truth: np.ndarray) -> None:
 
 
 def print_nuscenes(scorer) -> None:
-    """Headline numbers over all 16 classes and the expressible ones, then per class."""
+    """Every registered metric's values over all 16 challenge classes (the ``expressible`` ones over
+    the classes the model can express), then per class, then the mapping."""
     from rich.console import Console
-    from rich.table import Table
 
+    from flows.commands.eval_print import print_scores
+
+    res = scorer.result()
+    names = scorer.spec.names
+    title = f"Panoptic nuScenes ({res.frames} frames, min points {scorer.min_points})"
+    print_scores(title, res.values, res.classes, frozenset(names[c] for c in scorer.unexpressible))
+    m, expressible = scorer.mapping.record(), [names[c] for c in scorer.expressible.spec.include]
     console = Console(width=140)
-    s = scorer.summary()
-    keys = ("pq", "sq", "rq", "miou", "pq_dagger", "lstq", "pat", "tq", "ptq", "sptq")
-    table = Table(title=f"Panoptic nuScenes ({s['frames']} frames, min points {s['min_points']})")
-    table.add_column("classes")
-    for key in keys:
-        table.add_column(key.upper().replace("_DAGGER", "†").replace("MIOU", "mIoU"), justify="right")
-    for classes in ("all", "expressible"):
-        row = s[classes]
-        name = f"{classes} ({len(row['classes'])})"
-        table.add_row(name, *(_f(row[k]) for k in keys))
-    console.print(table)
-    per = Table(title="per class (challenge classes)")
-    for col in ("class", "PQ", "SQ", "RQ", "IoU", "model can predict"):
-        per.add_column(col, justify="right")
-    hidden = set(s["mapping"]["unexpressible"])
-    for name, c in s["per_class"].items():
-        per.add_row(
-            name, _f(c["pq"]), _f(c["sq"]), _f(c["rq"]), _f(c["iou"]), "no" if name in hidden else "yes"
-        )
-    console.print(per)
-    console.print(f"class mapping: {s['mapping']['file']} (sha256 {s['mapping']['sha256'][:12]})")
-
-
-def _f(x) -> str:
-    return "n/a" if x is None else f"{100 * x:.1f}"
+    console.print(f"all ({len(scorer.spec.include)}): the challenge classes")
+    console.print(
+        f"expressible ({len(expressible)}): those the model's classes can name ({', '.join(expressible)})"
+    )
+    console.print(f"class mapping: {m['file']} (sha256 {m['sha256'][:12]})")

@@ -26,35 +26,15 @@ def export(
 ) -> None:
     """Write the run's final labels in its log's format (or --format): one file per scan, named as
     the log names the scan (frame number, scan file name, message stamp or sample_data token)."""
-    from flows.export import EXPORT_FORMATS, default_export_format, export_frames, export_semantickitti
+    from flows.export_formats import EXPORTS, default_export_format, export
 
     seqs = sequences.split(",") if sequences else None
     with errors_exit():
         check_output(out, "--out", "folder")
         format = format or default_export_format(root)
-    if format not in EXPORT_FORMATS:
-        raise typer.BadParameter(f"unknown format {format!r} (available: {', '.join(EXPORT_FORMATS)})")
-    if format == "nuscenes":
-        from flows.commands.export_nuscenes import export_nuscenes_command
-
-        return export_nuscenes_command(root, out, seqs, split)
+    if format not in EXPORTS:
+        raise typer.BadParameter(f"unknown format {format!r} (available: {', '.join(EXPORTS)})")
     with errors_exit():
-        if format == "semantickitti":
-            summary = export_semantickitti(root, out, seqs)
-            where = out.resolve() / "sequences"
-        else:
-            summary = export_frames(root, out, seqs)
-            where = out.resolve()
-    for seq, n in summary.frames.items():
-        line = f"sequence {seq}: {n} label files"
-        missing = summary.missing[seq]
-        if missing:
-            line += f" ({len(missing)} frames without a label: {', '.join(missing[:5])})"
-        removed = summary.removed.get(seq)
-        if removed:
-            line += (
-                f"; removed {len(removed)} .label files an earlier export left for frames this export does "
-                f"not write: {', '.join(removed[:5])}{', …' if len(removed) > 5 else ''}"
-            )
+        fmt, summary = export(root, out, format, seqs, split=split)
+    for line in fmt.lines(summary):
         typer.echo(line)
-    typer.echo(f"wrote {format} labels to {where}")

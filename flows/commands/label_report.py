@@ -43,7 +43,8 @@ def run_report(
 
 
 def headline(store) -> str:
-    """``scores (official, 20 frames): PQ 41.5 · mIoU 37.3 · LSTQ 48.1``, or that nothing is scored."""
+    """``scores (official, 20 frames): PQ 41.5 · mIoU 37.3 · LSTQ 48.1 · mIoU (present) 52.0 · PQ
+    (present) 47.9``, or that nothing is scored."""
     from storage.errors import StoreError
 
     try:
@@ -52,10 +53,9 @@ def headline(store) -> str:
         run = read_report_table(store, "score_run").to_pylist()[0]
     except (StoreError, FileNotFoundError, IndexError, KeyError):
         return "no ground truth scored (a log without labels, or no score stage)"
-    scores = " · ".join(
-        f"{name} {100 * run[key]:.1f}" for name, key in (("PQ", "pq"), ("mIoU", "miou"), ("LSTQ", "lstq"))
-        if run.get(key) is not None
-    )  # fmt: skip
+    from flows.publish import brief_line
+
+    scores = brief_line({k: v for k, v in run.items() if v is not None})  # the registry's brief numbers
     return f"scores ({run.get('mode', 'official')}, {run.get('frames', '?')} frames): {scores}"
 
 

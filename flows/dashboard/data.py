@@ -9,7 +9,7 @@ from typing import Any
 from flows.report.tables import REPORT_TABLES
 from storage.errors import StoreError
 from storage.run import RunStore
-from tasks.score import FRAME_METRICS
+from tasks.score import frame_metrics_spec
 
 
 @dataclass
@@ -77,7 +77,9 @@ def _rows(store: RunStore, name: str) -> list[dict[str, Any]]:
     spec = REPORT_TABLES[name]
     if not store.has_table(spec):
         return []
-    return store.read_all(spec).select(spec.schema.names).to_pylist()
+    table = store.read_all(spec)
+    # a report written before a metric was registered lacks its columns: shown as missing
+    return table.select([n for n in spec.schema.names if n in table.column_names]).to_pylist()
 
 
 def _by_sequence(rows: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
@@ -90,9 +92,9 @@ def _by_sequence(rows: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
 
 
 def _frames(store: RunStore) -> dict[str, list[dict[str, Any]]]:
-    if not store.has_table(FRAME_METRICS):
+    if not store.has_table(frame_metrics_spec()):
         return {}
-    table = store.read_all(FRAME_METRICS).select(
+    table = store.read_all(frame_metrics_spec()).select(
         ["sequence", "index", "frame_id", "pq", "miou", "n_points", "tp", "fp", "fn"]
     )
     return _by_sequence(table.to_pylist())

@@ -10,23 +10,30 @@ import base64
 import json
 from collections.abc import Sequence
 
+from dsnet_core.metrics.registry import Column, columns
+
 from . import fmt, svg
 from .data import RunTables
 from .fmt import cell, esc
 
-HEADLINE = (
-    ("pq", "PQ"),
-    ("pq_dagger", "PQ†"),
-    ("sq", "SQ"),
-    ("rq", "RQ"),
-    ("pq_things", "PQ things"),
-    ("pq_stuff", "PQ stuff"),
-    ("miou", "mIoU"),
-    ("lstq", "LSTQ"),
-    ("s_assoc", "S assoc"),
-    ("s_cls", "S cls"),
+PRESENT_NOTE = (
+    "(present): mean over the classes with ground-truth points in the scope scored; the official "
+    "means count every absent class as 0."
 )
-CLASS_COLS = (("pq", "PQ"), ("sq", "SQ"), ("rq", "RQ"), ("iou", "IoU"))
+
+
+def headline_columns(runs: list[RunTables]) -> list[Column]:
+    """The registered metrics' run-level columns that some run has a value of (registry order)."""
+    return [c for c in columns("run") if any(run.run.get(c.key) is not None for run in runs)]
+
+
+def class_columns() -> list[tuple[str, str]]:
+    """``(key, label)`` of the registered per-class fractions (PQ, SQ, RQ, IoU, ...)."""
+    return [(c.key, c.label) for c in columns("class") if c.kind == "score"]
+
+
+def _show(c: Column, v) -> str:
+    return fmt.count(v) if c.kind == "count" and v is not None else fmt.score(v)
 
 
 def tag(i: int) -> str:
@@ -53,29 +60,30 @@ def legend(rows: Sequence[dict], dim: bool = False, note: str = "") -> str:
 
 
 def headline(runs: list[RunTables]) -> str:
-    """Cards with the first run's main numbers, then every run side by side with deltas to A."""
+    """Cards with the first run's brief numbers, then every registered metric value of every run
+    side by side with deltas to A (rows no run has a value of are left out)."""
     a = runs[0].run
+    shown = headline_columns(runs)
     cards = "".join(
-        f'<div class="card"><div class="big" data-k="card:{key}" data-v="{esc(repr(a[key]))}">'
-        f"{fmt.score(a[key])}</div><div>{name}</div></div>"
-        for key, name in HEADLINE[:1] + HEADLINE[6:8] + HEADLINE[4:6]
+        f'<div class="card"><div class="big" data-k="card:{c.key}" data-v="{esc(repr(a.get(c.key)))}">'
+        f"{_show(c, a.get(c.key))}</div><div>{esc(c.label)}</div></div>"
+        for c in shown
+        if c.brief
     )
     cols = ["metric"] + [f"{tag(r)}{esc(run.label)}" for r, run in enumerate(runs)]
     cols += [f"Δ {esc(run.label.split(' ')[0])} − A" for run in runs[1:]]
     body = []
-    for key, name in HEADLINE:
-        cells = [f"<td>{name}</td>"]
-        cells += [cell(fmt.score(run.run[key]), f"run:{r}:{key}", run.run[key]) for r, run in enumerate(runs)]
+    for c in shown:
+        key = c.key
+        cells = [f'<td title="{esc(c.help)}">{esc(c.label)}</td>']
         cells += [
-            cell(
-                fmt.delta(run.run[key], a[key]),
-                f"delta:{r}:{key}",
-                None if run.run[key] is None or a[key] is None else run.run[key] - a[key],
-                cls=sign(run.run[key], a[key]),
-            )
-            for r, run in enumerate(runs)
-            if r > 0
+            cell(_show(c, run.run.get(key)), f"run:{r}:{key}", run.run.get(key)) for r, run in enumerate(runs)
         ]
+        for r, run in enumerate(runs[1:], start=1):
+            v, base = run.run.get(key), a.get(key)
+            diff = None if v is None or base is None else v - base
+            text = fmt.delta(v, base) if c.kind == "score" else ("–" if diff is None else f"{diff:+d}")
+            cells.append(cell(text, f"delta:{r}:{key}", diff, cls=sign(v, base)))
         body.append("<tr>" + "".join(cells) + "</tr>")
     meta_rows = []
     for key, name, show in (
@@ -93,7 +101,10 @@ def headline(runs: list[RunTables]) -> str:
         cells += ["<td></td>"] * (len(runs) - 1)
         meta_rows.append("<tr class='meta'>" + "".join(cells) + "</tr>")
     table = f'<table class="num" id="headline">{head(cols)}<tbody>{"".join(body + meta_rows)}</tbody></table>'
-    return f'<section id="s-headline"><h2>Headline</h2><div class="cards">{cards}</div>{table}</section>'
+    note = f'<p class="note">{esc(PRESENT_NOTE)}</p>' if any("(present)" in c.label for c in shown) else ""
+    return (
+        f'<section id="s-headline"><h2>Headline</h2><div class="cards">{cards}</div>{note}{table}</section>'
+    )
 
 
 def sign(v, base) -> str:
@@ -106,19 +117,20 @@ def classes(runs: list[RunTables]) -> str:
     """Per-class PQ/SQ/RQ/IoU tables and bars, things and stuff apart."""
     legend = " ".join(f"{tag(r)}{esc(run.label)}" for r, run in enumerate(runs))
     parts = [f'<section id="s-classes"><h2>Classes</h2><p class="note">{legend}</p>']
+    class_cols = class_columns()
     for kind in ("thing", "stuff"):
         names = [c["class"] for c in runs[0].classes if c["kind"] == kind]
         by_run = [{c["class"]: c for c in run.classes} for run in runs]
         cols = ["class"]
         for r in range(len(runs)):
-            cols += [f"{tag(r)}{n}" for _, n in CLASS_COLS]
+            cols += [f"{tag(r)}{esc(n)}" for _, n in class_cols]
         cols += [f"Δ PQ {run.label.split(' ')[0]}" for run in runs[1:]]
         body = []
         for name in names:
             cells = [f"<td>{esc(name)}</td>"]
             for r, rows in enumerate(by_run):
                 c = rows.get(name, {})
-                cells += [cell(fmt.score(c.get(k)), f"class:{r}:{name}:{k}", c.get(k)) for k, _ in CLASS_COLS]
+                cells += [cell(fmt.score(c.get(k)), f"class:{r}:{name}:{k}", c.get(k)) for k, _ in class_cols]
             base = by_run[0][name]["pq"]
             for r, rows in enumerate(by_run[1:], start=1):
                 v = rows.get(name, {}).get("pq")
@@ -151,13 +163,10 @@ def classes(runs: list[RunTables]) -> str:
 
 def sequences(runs: list[RunTables]) -> str:
     """Per-sequence numbers of every run (merged accumulators of the sequence)."""
-    keys = (
-        ("frames", "frames", fmt.count),
-        ("points", "points", fmt.count),
-        ("pq", "PQ", fmt.score),
-        ("miou", "mIoU", fmt.score),
-        ("lstq", "LSTQ", fmt.score),
-    )
+    keys = [("frames", "frames", fmt.count), ("points", "points", fmt.count)]
+    keys += [
+        (c.key, c.label, fmt.count if c.kind == "count" else fmt.score) for c in columns("run") if c.brief
+    ]
     names = sorted({s["sequence"] for run in runs for s in run.sequences})
     by_run = [{s["sequence"]: s for s in run.sequences} for run in runs]
     cols = ["sequence"] + [f"{tag(r)}{n}" for r in range(len(runs)) for _, n, _ in keys]

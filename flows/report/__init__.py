@@ -2,6 +2,6 @@
 written as tables beside the run's stage tables (see :mod:`flows.report.merge`)."""
 
 from flows.report.merge import ScoreReport, read_report_table, write_report
-from flows.report.tables import HEADLINE_KEYS, REPORT_TABLES
+from flows.report.tables import REPORT_TABLES, headline_keys
 
-__all__ = ["HEADLINE_KEYS", "REPORT_TABLES", "ScoreReport", "read_report_table", "write_report"]
+__all__ = ["REPORT_TABLES", "ScoreReport", "headline_keys", "read_report_table", "write_report"]

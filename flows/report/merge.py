@@ -18,18 +18,19 @@ from typing import Any
 
 from dsnet_core.labels import LabelMap
 from dsnet_core.metrics import EvalResult
-from dsnet_core.metrics.nuscenes_scorer import NuScenesScorer
+from dsnet_core.metrics.registry import columns
 from dsnet_core.metrics.scoring import Scorer, restore_scorer
 from dsnet_core.metrics.state import state_from_bytes
 from flows.report.facts import config_hash, model_plan, timing_rows  # noqa: F401 (model_plan, timing_rows: re-exported)
 from flows.report.label_report import LabelReport, write_label_report
 from flows.report.pictures import bev_rows, legend_rows
 from flows.report.refined import before_evaluators, refine_score_rows
-from flows.report.tables import HEADLINE_KEYS, REPORT_TABLES, SCORING_KEYS
+from flows.report.tables import REPORT_TABLES
+from storage.errors import StoreError
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
 from tasks.run_config import RunConfig, read_run
-from tasks.score import FRAME_METRICS, ScoreConfig, block_state_name, make_evaluator
+from tasks.score import ScoreConfig, block_state_name, frame_metrics_spec, make_evaluator
 
 SCORE = "score"
 
@@ -52,6 +53,10 @@ def sequence_evaluator(store: RunStore, sequence: str, label_map, model_map=None
     Args:
         label_map: the ground truth's label map.
         model_map: the model's (default: the same; another goes through their class mapping).
+
+    Raises:
+        StoreError: a block state this version does not read (an older layout, or another set of
+            metrics), naming the file.
     """
     m = store.read_manifest(sequence, SCORE)
     if m is None or m.status != "done" or m.n_items == 0:  # not scored, or no ground truth
@@ -59,41 +64,41 @@ def sequence_evaluator(store: RunStore, sequence: str, label_map, model_map=None
     config = ScoreConfig.model_validate(m.config)
     ev = make_evaluator(config, label_map, model_map)
     for items in m.blocks:
-        data = store.read_block_bytes(sequence, SCORE, block_state_name(items[0]))
-        ev.merge(restore_scorer(make_evaluator(config, label_map, model_map), state_from_bytes(data)))
+        name = block_state_name(items[0])
+        data = store.read_block_bytes(sequence, SCORE, name)
+        try:
+            part = restore_scorer(make_evaluator(config, label_map, model_map), state_from_bytes(data))
+        except ValueError as exc:  # a state of another layout or set of metrics: never misread
+            raise StoreError(store.root.url(store.block_bytes_rel(sequence, SCORE, name)), str(exc)) from None
+        ev.merge(part)
     return ev
 
 
 def scoring_columns(ev: Scorer) -> dict[str, Any]:
-    """The report's ``scoring`` columns of a scorer (tracking and expressible-class numbers are
-    null for a benchmark without them)."""
-    out: dict[str, Any] = dict.fromkeys(SCORING_KEYS)
-    out["scoring"], out["class_mapping"] = ev.label_map.name, ""
-    if isinstance(ev, NuScenesScorer):
-        out["class_mapping"] = ev.mapping.file
-        tr, sub, sub_tr = ev.tracking(), ev.result("expressible"), ev.tracking("expressible")
-        values = {
-            "pat": tr.pat,
-            "tq": tr.tq,
-            "ptq": tr.ptq,
-            "sptq": tr.sptq,
-            "pq_expressible": sub.panoptic.pq,
-            "sq_expressible": sub.panoptic.sq,
-            "rq_expressible": sub.panoptic.rq,
-            "miou_expressible": sub.panoptic.miou,
-            "lstq_expressible": sub_tr.lstq,
-            "pat_expressible": sub_tr.pat,
-        }
-        out.update({k: float(v) if math.isfinite(v) else None for k, v in values.items()})
+    """How a scorer scored: the metric family (the ground truth's map) and the class mapping file."""
+    return {"scoring": ev.label_map.name, "class_mapping": ev.mapping.file if ev.mapping is not None else ""}
+
+
+def metric_row(res: EvalResult, level: str = "run") -> dict[str, Any]:
+    """The registered metrics' columns of ``level`` from a result: finite values as they are, NaN,
+    inf and metrics the scorer lacks as null (counts as int)."""
+    values = res.values
+    out: dict[str, Any] = {}
+    for c in columns(level):
+        v = values.get(c.key)
+        if v is None or not math.isfinite(v):
+            out[c.key] = None
+        else:
+            out[c.key] = int(v) if c.kind == "count" else float(v)
     return out
 
 
-def _headline(res: EvalResult) -> dict[str, float | None]:
-    p, t = res.panoptic, res.lstq
-    out = {}
-    for key in HEADLINE_KEYS:
-        v = getattr(p, key) if hasattr(p, key) else getattr(t, key)
-        out[key] = float(v) if math.isfinite(v) else None
+def class_metric_row(row: dict[str, float]) -> dict[str, Any]:
+    """One class's registered per-class columns (null where a metric has none for it)."""
+    out: dict[str, Any] = {}
+    for c in columns("class"):
+        v = row.get(c.key)
+        out[c.key] = None if v is None else int(v) if c.kind == "count" else float(v)
     return out
 
 
@@ -151,8 +156,8 @@ def _score_report(
                 "sequence": seq,
                 "frames": res.frames,
                 "points": int(sum(frames.get(seq, {}).get("n_points", []))),
-                **_headline(res),
                 **scoring_columns(ev),
+                **metric_row(res),
                 "tp": int(p.tp[ev.spec.include].sum()),
                 "fp": int(p.fp[ev.spec.include].sum()),
                 "fn": int(p.fn[ev.spec.include].sum()),
@@ -161,19 +166,14 @@ def _score_report(
         total = ev if total is None else total.merge(ev)
     res = total.result()
     spec = total.spec
-    hidden = set(total.mapping.unexpressible) if isinstance(total, NuScenesScorer) else set()
-    to_gt = total.mapping.map_labels if isinstance(total, NuScenesScorer) else None
+    hidden, to_gt = total.unexpressible, total.to_truth
     class_rows = [
         {
             "class_id": int(k),
             "class": spec.names[k],
             "kind": "thing" if k in spec.things else "stuff",
             "expressible": int(k) not in hidden,
-            **{
-                key: float(getattr(res.panoptic.per_class[spec.names[k]], key))
-                for key in ("pq", "sq", "rq", "iou")
-            },
-            **{key: int(getattr(res.panoptic.per_class[spec.names[k]], key)) for key in ("tp", "fp", "fn")},
+            **class_metric_row(res.classes.get(spec.names[k], {})),
         }
         for k in spec.include
     ]
@@ -187,8 +187,8 @@ def _score_report(
         "sequences": len(evals),
         "frames": res.frames,
         "points": int(sum(r["points"] for r in seq_rows)),
-        **_headline(res),
         **scoring_columns(total),
+        **metric_row(res),
         "created": time.time(),
     }
     out = ScoreReport(run_row, seq_rows, class_rows, truth_map=total.label_map)
@@ -210,7 +210,7 @@ def _scored(store: RunStore, sequence: str) -> bool:
 
 def _frame_table(store: RunStore, sequences: list[str]) -> dict[str, dict[str, list]]:
     """``frame_metrics`` by sequence (columns as lists), only sequences whose score stage is done."""
-    return {s: store.read_table(s, FRAME_METRICS).to_pydict() for s in sequences if _scored(store, s)}
+    return {s: store.read_table(s, frame_metrics_spec()).to_pydict() for s in sequences if _scored(store, s)}
 
 
 def read_report_table(store: RunStore, name: str):

@@ -1,108 +1,90 @@
 """The report tables: dataset-level numbers merged from every scored sequence's accumulators.
 
 One file each, not partitioned (``tables/<name>/part-0.parquet``), rewritten whole on every report.
+The score tables (``score_run``, ``score_sequences``, ``score_classes``) carry one column per
+registered metric value (:mod:`dsnet_core.metrics.registry`), so a new metric needs no edit here.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Mapping
+
 import pyarrow as pa
 
+from dsnet_core.metrics.registry import columns
 from flows.report.label_tables import LABEL_TABLES
 from storage.contract import TableSpec
+from tasks.score import column_type
 
-_HEADLINE = [
-    ("pq", pa.float64()),
-    ("sq", pa.float64()),
-    ("rq", pa.float64()),
-    ("pq_dagger", pa.float64()),
-    ("pq_things", pa.float64()),
-    ("sq_things", pa.float64()),
-    ("rq_things", pa.float64()),
-    ("pq_stuff", pa.float64()),
-    ("sq_stuff", pa.float64()),
-    ("rq_stuff", pa.float64()),
-    ("miou", pa.float64()),
-    ("lstq", pa.float64()),
-    ("s_assoc", pa.float64()),
-    ("s_cls", pa.float64()),
-    ("iou_things", pa.float64()),
-    ("iou_stuff", pa.float64()),
-]
-HEADLINE_KEYS = tuple(name for name, _ in _HEADLINE)
-# how the run was scored, and the numbers only some benchmarks have (null where they do not):
-# Panoptic nuScenes tracking metrics, and every headline number again over the classes the
-# model's classes can express (the class mapping's; the rest ignored like class 0)
 _SCORING = [
     ("scoring", pa.string()),  # the metric family: the ground truth's label map name
     ("class_mapping", pa.string()),  # the mapping file from the model's classes ("": none)
-    ("pat", pa.float64()),
-    ("tq", pa.float64()),
-    ("ptq", pa.float64()),
-    ("sptq", pa.float64()),
-    ("pq_expressible", pa.float64()),
-    ("sq_expressible", pa.float64()),
-    ("rq_expressible", pa.float64()),
-    ("miou_expressible", pa.float64()),
-    ("lstq_expressible", pa.float64()),
-    ("pat_expressible", pa.float64()),
 ]
-SCORING_KEYS = tuple(name for name, _ in _SCORING)
 
-SCORE_RUN = TableSpec(
-    "score_run",
-    pa.schema(
-        [
-            ("run_id", pa.string()),
-            ("root", pa.string()),
-            ("mode", pa.string()),  # official | corrected
-            ("model_card", pa.string()),  # model card id ("" when unknown)
-            ("config_hash", pa.string()),  # sha256[:16] of the run's stage configs
-            ("min_points", pa.int64()),
-            ("sequences", pa.int64()),
-            ("frames", pa.int64()),
-            ("points", pa.int64()),
-            *_HEADLINE,
-            *_SCORING,
-            ("created", pa.float64()),  # unix seconds
-        ]
-    ),
-    partition=(),
-)
-SCORE_SEQUENCES = TableSpec(
-    "score_sequences",
-    pa.schema(
-        [
-            ("sequence", pa.string()),
-            ("frames", pa.int64()),
-            ("points", pa.int64()),
-            *_HEADLINE,
-            *_SCORING,
-            ("tp", pa.int64()),
-            ("fp", pa.int64()),
-            ("fn", pa.int64()),
-        ]
-    ),
-    partition=(),
-)
-SCORE_CLASSES = TableSpec(
-    "score_classes",
-    pa.schema(
-        [
-            ("class_id", pa.int32()),  # train id
-            ("class", pa.string()),
-            ("kind", pa.string()),  # thing | stuff
-            ("expressible", pa.bool_()),  # the model's classes reach it (always, without a mapping)
-            ("pq", pa.float64()),
-            ("sq", pa.float64()),
-            ("rq", pa.float64()),
-            ("iou", pa.float64()),
-            ("tp", pa.int64()),
-            ("fp", pa.int64()),
-            ("fn", pa.int64()),
-        ]
-    ),
-    partition=(),
-)
+
+def metric_fields(level: str = "run") -> list[tuple[str, pa.DataType]]:
+    """Every registered metric's columns of ``level`` (``run`` or ``class``) as table fields, null
+    where the run's scorer has no such metric (the nuScenes tracking numbers on SemanticKITTI)."""
+    return [(c.key, column_type(c.kind)) for c in columns(level)]
+
+
+def headline_keys() -> tuple[str, ...]:
+    """The run- and sequence-level value keys of the registered metrics, in registry order."""
+    return tuple(c.key for c in columns("run"))
+
+
+def score_run_spec() -> TableSpec:
+    return TableSpec(
+        "score_run",
+        pa.schema(
+            [
+                ("run_id", pa.string()),
+                ("root", pa.string()),
+                ("mode", pa.string()),  # official | corrected
+                ("model_card", pa.string()),  # model card id ("" when unknown)
+                ("config_hash", pa.string()),  # sha256[:16] of the run's stage configs
+                ("min_points", pa.int64()),
+                ("sequences", pa.int64()),
+                ("frames", pa.int64()),
+                ("points", pa.int64()),
+                *_SCORING,
+                *metric_fields(),
+                ("created", pa.float64()),  # unix seconds
+            ]
+        ),
+        partition=(),
+    )
+
+
+def score_sequences_spec() -> TableSpec:
+    return TableSpec(
+        "score_sequences",
+        pa.schema(
+            [
+                ("sequence", pa.string()),
+                ("frames", pa.int64()),
+                ("points", pa.int64()),
+                *_SCORING,
+                *metric_fields(),
+                ("tp", pa.int64()),
+                ("fp", pa.int64()),
+                ("fn", pa.int64()),
+            ]
+        ),
+        partition=(),
+    )
+
+
+def score_classes_spec() -> TableSpec:
+    fixed = [
+        ("class_id", pa.int32()),  # train id
+        ("class", pa.string()),
+        ("kind", pa.string()),  # thing | stuff
+        ("expressible", pa.bool_()),  # the model's classes reach it (always, without a mapping)
+    ]
+    return TableSpec("score_classes", pa.schema([*fixed, *metric_fields("class")]), partition=())
+
+
 STAGE_TIMINGS = TableSpec(
     "stage_timings",
     pa.schema(
@@ -173,15 +155,32 @@ FRAME_CONFIDENCE = TableSpec(
     partition=(),
 )
 
-REPORT_TABLES: dict[str, TableSpec] = {
-    spec.name: spec
-    for spec in (
-        SCORE_RUN,
-        SCORE_SEQUENCES,
-        SCORE_CLASSES,
-        STAGE_TIMINGS,
-        SCORE_BEV,
-        REVIEW_QUEUE,
-        FRAME_CONFIDENCE,
-    )
-} | LABEL_TABLES
+_METRIC_TABLES: dict[str, Callable[[], TableSpec]] = {
+    "score_run": score_run_spec,
+    "score_sequences": score_sequences_spec,
+    "score_classes": score_classes_spec,
+}
+
+
+class _ReportTables(Mapping[str, TableSpec]):
+    """Name -> table spec; the score tables' columns come from the metric registry as it is when
+    asked (a metric registered after import has its columns)."""
+
+    def __init__(self, fixed: dict[str, TableSpec]) -> None:
+        self._fixed = fixed
+
+    def __getitem__(self, name: str) -> TableSpec:
+        if name in _METRIC_TABLES:
+            return _METRIC_TABLES[name]()
+        return self._fixed[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter([*_METRIC_TABLES, *self._fixed])
+
+    def __len__(self) -> int:
+        return len(_METRIC_TABLES) + len(self._fixed)
+
+
+REPORT_TABLES: Mapping[str, TableSpec] = _ReportTables(
+    {spec.name: spec for spec in (STAGE_TIMINGS, SCORE_BEV, REVIEW_QUEUE, FRAME_CONFIDENCE)} | LABEL_TABLES
+)

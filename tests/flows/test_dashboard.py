@@ -9,9 +9,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from dsnet_core.metrics.registry import columns
 from dsnet_core.viz.png import decode_png
 from flows.dashboard import build_dashboard
-from flows.dashboard.sections import HEADLINE
 from tests.flows.browser import Browser
 from tests.flows.conftest import REPO, cli
 from tests.tasks.oracle_stitch import score_runs
@@ -29,6 +29,11 @@ def _table(uri: str, name: str) -> list[dict]:
     return pq.read_table(f"{uri}/tables/{name}/part-0.parquet").to_pylist()
 
 
+def _headline(run: dict) -> list[str]:
+    """The registered fractions a run has a value of (the dashboard's headline rows)."""
+    return [c.key for c in columns("run") if c.kind == "score" and run.get(c.key) is not None]
+
+
 def _expected(uris: list[str]) -> dict[str, object]:
     """Every value the page must show, keyed like the page's ``data-k``, straight from parquet."""
     out: dict[str, object] = {}
@@ -38,7 +43,7 @@ def _expected(uris: list[str]) -> dict[str, object]:
         for key in run:
             out[f"run:{r}:{key}"] = run[key]
         if r:
-            for key, _ in HEADLINE:
+            for key in _headline(base):
                 out[f"delta:{r}:{key}"] = run[key] - base[key]
         for c in _table(uri, "score_classes"):
             for key in ("pq", "sq", "rq", "iou"):
@@ -102,6 +107,7 @@ def test_dashboard_in_headless_chromium(runs, tmp_path):
             "Array.from(document.querySelectorAll('#s-worst .legend .key[data-class]'))"
             ".map(e => e.textContent)"
         )
+        browser_text = browser.eval("document.querySelector('#s-headline').textContent")
         browser.eval("window.scrollTo(0, 0)")
         png = browser.screenshot()
         errors, requests = browser.errors(), browser.requests()
@@ -126,8 +132,10 @@ def test_dashboard_in_headless_chromium(runs, tmp_path):
         assert _shown_matches(key, text, want), (key, text, want)
         checked += 1
     for r in range(2):
-        for key, _ in HEADLINE:
-            assert f"run:{r}:{key}" in shown
+        for key in _headline(expected_run := _table(uris[r], "score_run")[0]):
+            assert f"run:{r}:{key}" in shown, key
+        assert f"run:{r}:pat" not in shown and expected_run["pat"] is None  # nuScenes-only: no row
+    assert "classes with ground-truth points" in browser_text
     assert sum(k.startswith("class:") for k in shown) == 2 * 19 * 4
     assert checked >= 2 * (10 + 19 * 4 + 2 * 5) + 10
     # the charts and pictures are drawn: non-blank, several colours

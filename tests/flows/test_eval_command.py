@@ -24,6 +24,7 @@ KEYS = {
     "mode", "pq", "pq_dagger", "sq", "rq", "pq_things", "sq_things", "rq_things", "pq_stuff",
     "sq_stuff", "rq_stuff", "miou", "lstq", "s_assoc", "s_cls", "iou_stuff", "iou_things",
     "per_class", "frames",
+    "miou_present", "pq_present", "sq_present", "rq_present", "present_classes",  # metric ``present``
 }  # fmt: skip
 
 

@@ -43,7 +43,7 @@ def test_publish_writes_dashboard_and_artifacts_with_stable_keys(prefect_api_url
             k.upper() if k != "iou" else "IoU": round(100 * classes[-1][k], 1)
             for k in ("pq", "sq", "rq", "iou")
         },
-        **{k: classes[-1][k] for k in ("tp", "fp", "fn")},
+        **{k: classes[-1][k] for k in ("tp", "fp", "fn", "gt_points")},  # gt_points: metric ``present``
     }
 
 

@@ -16,7 +16,7 @@ from dsnet_core.labels import load_label_map
 from dsnet_core.metrics import PanopticEvaluator
 from dsnet_core.review.confidence import MIN_INSTANCE_POINTS
 from dsnet_core.viz.png import decode_png
-from flows.report import HEADLINE_KEYS, read_report_table, write_report
+from flows.report import headline_keys, read_report_table, write_report
 from storage.run import RunStore
 from tasks.methods import get_pipeline
 from tasks.runner import prepare_stage, run_stage_plain
@@ -73,12 +73,15 @@ def test_frame_rows_and_merged_numbers_equal_one_pass(scored, synth_log):
             assert got[key] == getattr(row, key)
         for key in ("pq", "sq", "rq", "miou"):
             assert _same(got[key], getattr(row, key))
+        for key in ("miou_present", "pq_present"):
+            assert _same(got[key], row.values[key])
     res = ref.result()
     run = read_report_table(store, "score_run").to_pylist()[0]
-    want = {k: getattr(res.panoptic, k, None) for k in HEADLINE_KEYS}
-    want.update({k: getattr(res.lstq, k) for k in HEADLINE_KEYS if hasattr(res.lstq, k)})
-    for key in HEADLINE_KEYS:  # merged block accumulators == one pass, exactly
-        assert _same(run[key], want[key]), key
+    want = res.values  # every registered metric's value; the nuScenes-only ones are absent (null)
+    assert want["pq"] == res.panoptic.pq and want["lstq"] == res.lstq.lstq
+    for key in headline_keys():  # merged block accumulators == one pass, exactly
+        assert _same(run[key], want.get(key)), key
+    assert run["miou_present"] >= run["miou"] and run["pat"] is None
     assert 0.3 < run["pq"] < 1 and 0.3 < run["lstq"] < 1
     frame_pq = [r["pq"] for r in frames.values() if r["pq"] is not None]
     assert run["pq"] != pytest.approx(np.mean(frame_pq), abs=1e-9)  # not an average of frames
@@ -166,7 +169,7 @@ def test_resume_after_lost_block_gives_the_same_report(scored, synth_log):
     assert d.action == "resume" and [j.block for j in d.jobs] == [1]
     run_stage_plain(store, P, "00", "score", run, "r1")
     again = write_report(store, P, bev_frames=3, review_rows=5)
-    for key in HEADLINE_KEYS:
+    for key in headline_keys():
         assert _same(again.run[key], report.run[key])
 
 
@@ -216,3 +219,35 @@ def test_model_card_id_comes_from_the_model_stage_plan(tmp_path):
     )  # fmt: skip
     store.write_manifest(m)
     assert model_plan(store, dsnet, ["00"])["model_card"] == "tiny-v2@" + "ab" * 6
+
+
+def test_a_block_state_of_another_layout_or_metrics_is_refused_naming_it(oracle_stages, synth_log, tmp_path):
+    from dsnet_core.metrics.registry import METRICS, STATE_FORMAT, register
+    from dsnet_core.metrics.state import state_from_bytes, state_to_bytes
+    from storage.errors import StoreError
+    from tasks.score import ScoreStage, block_state_name
+    from tests.flows.test_metric_registry import TOY
+
+    assert ScoreStage.version == "2" and STATE_FORMAT == "2"
+    store = RunStore(tmp_path / "run")
+    _label(store, synth_log)
+    name = block_state_name(0)
+    state = state_from_bytes(store.read_block_bytes("00", "score", name))
+    old = {k: v for k, v in state.items() if k != "format"}  # as a version-1 block left it: no layout
+    store.write_block_bytes("00", "score", name, state_to_bytes(old))
+    with pytest.raises(
+        StoreError, match=rf"00/score/blocks/{name}: scorer state: layout 1, this version reads"
+    ):
+        write_report(store, P)
+    store.write_block_bytes("00", "score", name, state_to_bytes(state))
+    assert write_report(store, P) is not None  # the state as written restores
+    fp = store.read_manifest("00", "score").fingerprint
+    register(TOY)
+    try:  # a metric registered since the blocks were scored: refused, until the stage reruns
+        with pytest.raises(StoreError, match=r"holds metrics .* the registry now has"):
+            write_report(store, P)
+        _label(store, synth_log, run_id="r2")  # the registered metrics are an input: it rescores
+        assert store.read_manifest("00", "score").fingerprint != fp
+        assert 0 < write_report(store, P, bev_frames=0).run["valid_share"] <= 1
+    finally:
+        METRICS.pop(TOY.name)

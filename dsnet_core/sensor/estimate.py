@@ -482,7 +482,7 @@ def _range_noise(scans: list[_Scan], voxel: float = 2.0) -> tuple[float | None, 
             for j in range(i, 3):
                 cov[:, i, j] = cov[:, j, i] = np.bincount(v, weights=q[:, i] * q[:, j], minlength=nv) / cnt
         lam, vec = np.linalg.eigh(cov)
-        planar = (lam[:, 1] > 0.05) & (lam[:, 0] < 0.1 * lam[:, 1])
+        planar = (lam[:, 1] > 0.05) & (lam[:, 0] < 0.03 * lam[:, 1])
         patches += int(planar.sum())
         normal = vec[:, :, 0]
         sel = planar[v]

@@ -288,12 +288,13 @@ def _azimuth_grid(scans: list[_Scan], beams: int) -> tuple[int, np.ndarray, floa
     w0 = 2 * math.pi / step
     az = np.concatenate([s.az for s in scans])
     beam = np.concatenate([s.beam for s in scans])
-    if az.size > 150_000:
-        sel = np.random.default_rng(0).choice(az.size, 150_000, replace=False)
+    if az.size > 60_000:
+        sel = np.random.default_rng(0).choice(az.size, 60_000, replace=False)
         az, beam = az[sel], beam[sel]
     counts = np.bincount(beam, minlength=beams).astype(np.float64)
     best_w, best_c, best_phase = max(1, round(w0)), -1.0, np.zeros(beams)
-    for w in range(max(1, int(w0 * 0.97)), int(w0 * 1.03) + 2):
+    span = min(int(w0 * 0.03) + 1, 150)  # at most 301 candidates
+    for w in range(max(1, round(w0) - span), round(w0) + span + 1):
         z = np.exp(2j * math.pi * ((az + math.pi) * w / (2 * math.pi) - 0.5))  # 1 on the grid (j + ½)·step
         # per beam (lasers may fire at their own azimuth offset), weighted by points
         re = np.bincount(beam, weights=z.real, minlength=beams)
@@ -361,7 +362,7 @@ def _ground_plane(s: _Scan, rng: np.random.Generator) -> tuple[float, float, flo
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(n, axis=1)
     ok = norm > 1e-9
-    n = n[ok] / norm[ok, None]
+    n, tri = n[ok] / norm[ok, None], tri[ok]
     n *= np.sign(n[:, 2:3]) + (n[:, 2:3] == 0)
     ok = n[:, 2] > 0.8  # within ~37° of the sensor's up
     if not ok.any():

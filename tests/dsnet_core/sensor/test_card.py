@@ -73,8 +73,8 @@ def test_unreadable_cards(tmp_path):
     with pytest.raises(SensorCardError, match="cannot read the sensor card"):
         load_card(tmp_path / "missing.yaml")
     (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
-    with pytest.raises(SensorCardError, match="list.yaml: a sensor card is a YAML mapping"):
+    with pytest.raises(SensorCardError, match=r"list\.yaml: a sensor card is a YAML mapping"):
         load_card(tmp_path / "list.yaml")
     (tmp_path / "broken.yaml").write_text("beams: [1,\n")
-    with pytest.raises(SensorCardError, match="broken.yaml: not YAML at line"):
+    with pytest.raises(SensorCardError, match=r"broken\.yaml: not YAML at line"):
         load_card(tmp_path / "broken.yaml")

@@ -305,7 +305,7 @@ def _azimuth_grid(scans: list[_Scan], beams: int) -> tuple[int, np.ndarray, floa
             best_w, best_c = w, c
             best_phase = np.arctan2(im, re) / (2 * math.pi)
     if best_c < 0.5:
-        best_w = max(1, round(w0))
+        best_w = min(max(1, round(w0)), 100_000)
     return int(best_w), best_phase, best_c, spacing_cv
 
 

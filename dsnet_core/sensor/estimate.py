@@ -140,7 +140,7 @@ def estimate_sensor(
             f"the points' order does not follow the spin ({100 * share:.0f} % of neighbouring steps increase)"
         )
     fov, center = _field_of_view(scans, steps)
-    fits = [(s, _ground_plane(s, np.random.default_rng(k))) for k, s in enumerate(scans[:10])]
+    fits = [(s, _ground_plane(s, np.random.default_rng(k))) for k, s in enumerate(_spread(scans, 6))]
     ground = [(s, g) for s, g in fits if g is not None]
     if ground:
         height = float(np.median([g[0] for _, g in ground]))
@@ -155,7 +155,7 @@ def estimate_sensor(
     ranges = np.concatenate([s.rng for s in scans])
     min_range, max_range = float(ranges.min()), float(ranges.max())
     range_edges = _range_edges(max_range)
-    drop, drop_diag = _ray_drop(scans, elevations.size, steps, phases, range_edges)
+    drop, drop_diag = _ray_drop(_spread(scans, 12), elevations.size, steps, phases, range_edges)
     diag.update(drop_diag)
     if drop is None:
         missing["ray_drop"] = "no surface seen by neighbouring rays: no drop rate measured (0 assumed)"
@@ -199,6 +199,13 @@ def estimate_sensor(
         not_estimated=missing,
     )
     return SensorEstimate(card, len(scans), len(refs), diag)
+
+
+def _spread(scans: list[_Scan], n: int) -> list[_Scan]:
+    """At most ``n`` of ``scans``, evenly spread."""
+    if len(scans) <= n:
+        return scans
+    return [scans[i] for i in np.linspace(0, len(scans) - 1, n).round().astype(int)]
 
 
 def _read(scan: np.ndarray) -> _Scan:
@@ -328,7 +335,7 @@ def _scan_direction(scans: list[_Scan], steps: int) -> tuple[str | None, float]:
 
 def _field_of_view(scans: list[_Scan], steps: int) -> tuple[float, float]:
     """(width, centre) in degrees: 360° less the widest azimuth gap without points."""
-    az = np.concatenate([s.az for s in scans])
+    az = np.concatenate([s.az[::3] for s in scans])
     bins = np.bincount(((np.degrees(az) + 180.0) % 360.0).astype(np.int64), minlength=360)[:360]
     empty = bins == 0
     if not empty.any():

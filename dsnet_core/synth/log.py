@@ -14,6 +14,8 @@ import numpy as np
 
 from dsnet_core.errors import ConfigError, SequenceLayoutError
 from dsnet_core.io.semantickitti import write_frame, write_sequence_meta
+from dsnet_core.sensor.card import SensorCard
+from dsnet_core.synth.card_sensor import setup_from_card
 from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.physics import apply_physics
 from dsnet_core.synth.render import Renderer
@@ -170,6 +172,7 @@ def generate_log(
     styles: list[str] | tuple[str, ...] | None = None,
     sensors: list[str] | tuple[str, ...] | None = None,
     physics: dict[str, Any] | None = None,
+    sensor_card: SensorCard | None = None,
 ) -> list[str]:
     """Generate ``sequences`` synthetic sequences of ``frames`` sweeps under ``out_root/sequences/``.
 
@@ -194,6 +197,9 @@ def generate_log(
         physics: deliberately altered sensor physics (:func:`~dsnet_core.synth.physics.parse_physics`
             keys: beam pattern, mounting height, remission model, ray drop), applied after each
             sequence's own draws and recorded in its ``synth.json``.
+        sensor_card: render with this sensor (:mod:`dsnet_core.synth.card_sensor`) instead of
+            ``sensor``: its beams, azimuth grid, field of view, mounting, range limits, ray drop,
+            range noise, remission and frame period; recorded in ``synth.json``.
 
     Returns:
         The sequence names written.
@@ -201,7 +207,7 @@ def generate_log(
     Raises:
         SequenceLayoutError: a sequence folder already holds files and ``overwrite`` is False.
         ConfigError: unknown ``sensor`` or ``style``; fewer than one sequence or frame; a negative seed;
-            sequence numbers beyond 99 (names are two digits).
+            sequence numbers beyond 99 (names are two digits); ``physics`` with a sensor card.
     """
     if sequences < 1 or frames < 1:
         raise ConfigError(
@@ -215,6 +221,11 @@ def generate_log(
     check_sensor(sensor)
     check_style(style)
     config = replace(config or SynthConfig(), sensor=sensor)
+    if sensor_card is not None:
+        if physics:
+            raise ConfigError("a sensor card fixes the sensor: give it or --physics, not both")
+        if sensor_card.frame_period_s is not None:
+            config = replace(config, frame_period=sensor_card.frame_period_s)
     tr = kitti_tr()
     names = [f"{first_sequence + k:02d}" for k in range(sequences)]
     for name in names:
@@ -223,6 +234,8 @@ def generate_log(
         index = int(name)
         seq_dir = Path(out_root) / "sequences" / name
         setup = choose_setup(child_seed(sequence_seed(seed, index), 2), style, sensor, styles, sensors)
+        if sensor_card is not None:
+            setup = setup_from_card(sensor_card, setup.style)
         setup = replace(setup, spec=apply_physics(setup.spec, physics))
         plan = plan_sequence(seed, index, frames, config, setup)
         renderer = Renderer(plan.scene, setup.spec, plan.poses[:, :2, 3])
@@ -241,6 +254,7 @@ def generate_log(
             "seed": int(seed),
             **setup.record(),
             **({"physics": physics} if physics else {}),
+            **({"sensor_card": sensor_card.model_dump(mode="json")} if sensor_card is not None else {}),
         }
         if config.variety != "base" and setup.style != "classic":
             record["variety"] = config.variety

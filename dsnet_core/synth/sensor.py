@@ -53,6 +53,24 @@ class LidarSpec:
     def rays(self) -> int:
         return self.beams * self.azimuth_steps
 
+    def simulate(
+        self,
+        dirs: np.ndarray,
+        hit_range: np.ndarray,
+        cos_incidence: np.ndarray,
+        reflectivity: np.ndarray,
+        semantic: np.ndarray,
+        instance: np.ndarray,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Geometric hits → a scan (see :func:`simulate_returns`; a sensor card's spec overrides it)."""
+        params = np.array(
+            [self.range_noise, self.dropout, self.far_dropout, self.min_range, self.max_range, self.falloff],
+            dtype=np.float64,
+        )
+        gains = np.asarray(self.beam_gains or (1.0,) * self.beams, dtype=np.float64) * self.remission_gain
+        return _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, gains, rng)
+
     def directions(self) -> np.ndarray:
         """Unit ray directions in the sensor frame, ``(B * W, 3) float64``, beam-major order.
 
@@ -156,7 +174,8 @@ def simulate_returns(
     A return is lost with probability ``dropout + far_dropout · (r / max_range)² · (1 − signal)``,
     where ``signal = reflectivity · (0.35 + 0.65 · cos incidence)`` (dark, grazing, far surfaces drop
     more); remission is ``gain(beam) · remission_gain · signal · exp(−r / falloff)`` plus noise, clipped
-    to [0, 1].
+    to [0, 1]. A sensor card's spec (:class:`~dsnet_core.synth.card_sensor.CardSpec`) has its own
+    ray drop and remission (its :meth:`LidarSpec.simulate`).
 
     Args:
         dirs: ``(R, 3) float64`` unit ray directions in the sensor frame, beam-major
@@ -171,12 +190,7 @@ def simulate_returns(
         scan ``(N, 4) float32`` (x, y, z metres in the sensor frame; remission) and label ``(N,) uint32``
         (raw semantic | instance << 16), rays in ``dirs`` order.
     """
-    params = np.array(
-        [spec.range_noise, spec.dropout, spec.far_dropout, spec.min_range, spec.max_range, spec.falloff],
-        dtype=np.float64,
-    )
-    gains = np.asarray(spec.beam_gains or (1.0,) * spec.beams, dtype=np.float64) * spec.remission_gain
-    return _returns(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, params, gains, rng)
+    return spec.simulate(dirs, hit_range, cos_incidence, reflectivity, semantic, instance, rng)
 
 
 @nb.njit(cache=True)

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dsnet_core.errors import ConfigError
+from dsnet_core.sensor.card import SensorCard
+from dsnet_core.synth.card_sensor import setup_from_card
 from dsnet_core.synth.config import SynthConfig
 from dsnet_core.synth.log import child_seed, plan_from_seed
 from dsnet_core.synth.render import Renderer
@@ -61,12 +63,15 @@ class StreamOptions:
         styles: street styles ``random`` draws from (None: all).
         sensors: LiDAR presets ``random`` draws from (None: all).
         config: world knobs.
+        card: render every sample with this sensor card's LiDAR instead of a drawn preset
+            (``dsnet train dsnet --stream-like LOG``; :mod:`dsnet_core.synth.card_sensor`).
     """
 
     frames: int = 2
     styles: tuple[str, ...] | None = None
     sensors: tuple[str, ...] | None = None
     config: SynthConfig = field(default_factory=SynthConfig)
+    card: SensorCard | None = field(default=None, repr=False)
 
 
 def stream_seed(seed: int, step: int) -> np.random.SeedSequence:
@@ -87,6 +92,8 @@ def stream_sample(seed: int, step: int, options: StreamOptions | None = None) ->
         raise ConfigError(f"a stream sample needs at least one frame, got frames={options.frames}")
     ss = stream_seed(seed, step)
     setup = choose_setup(child_seed(ss, 2), "random", "random", options.styles, options.sensors)
+    if options.card is not None:
+        setup = setup_from_card(options.card, setup.style)
     plan = plan_from_seed(ss, options.frames, options.config, setup, f"stream step {step}")
     renderer = Renderer(plan.scene, setup.spec, plan.poses[:, :2, 3])
     frame_seeds = child_seed(ss, 1).spawn(options.frames)

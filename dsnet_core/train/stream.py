@@ -107,6 +107,8 @@ class StreamLog:
         }
         if o.config.variety != "base":  # base streams keep the record (and fingerprint) they had
             out["variety"] = o.config.variety
+        if o.card is not None:
+            out["sensor_card"] = o.card.model_dump(mode="json")
         return out
 
     def fingerprint(self) -> str:

@@ -6,7 +6,14 @@ from pathlib import Path
 
 import typer
 
-from flows.commands.common import FIXED_FRAME_HELP, FORMAT_HELP, READER_OPTION_HELP, TOPIC_HELP, errors_exit
+from flows.commands.common import (
+    FIXED_FRAME_HELP,
+    FORMAT_HELP,
+    READER_OPTION_HELP,
+    TOPIC_HELP,
+    check_output,
+    errors_exit,
+)
 
 
 def describe(
@@ -16,19 +23,87 @@ def describe(
     reader_option: list[str] = typer.Option(None, "--reader-option", help=READER_OPTION_HELP),
     topic: str = typer.Option(None, "--topic", help=TOPIC_HELP),
     fixed_frame: str = typer.Option(None, "--fixed-frame", help=FIXED_FRAME_HELP),
+    sensor: bool = typer.Option(
+        False,
+        "--sensor",
+        help="Estimate the LiDAR from the log instead (beams and their elevations, azimuth grid, FOV, "
+        "mounting, range limits, ray drop, range noise, remission) and say what could not be estimated.",
+    ),
+    out: Path = typer.Option(
+        None, "--out", help="With --sensor: write the sensor card (YAML) here, for dsnet synth --sensor-card."
+    ),
 ) -> None:
     """Check every file of a log and print its format, per sequence the frames, points per frame,
-    sensor fields, intensity convention and pose source, and the class histogram."""
+    sensor fields, intensity convention and pose source, and the class histogram (--sensor: the
+    estimated LiDAR instead)."""
     from dsnet_core.io.describe import summarize
     from dsnet_core.io.formats import open_log
     from flows.request import parse_reader_options
 
     with errors_exit():
+        if out is not None and not sensor:
+            raise typer.BadParameter("--out writes the sensor card: give it with --sensor")
+        if out is not None:
+            check_output(out, "--out", "file")
         reader = open_log(
             data, format, parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame)
         )
-        summary = summarize(reader, sequences.split(",") if sequences else None)
+        seqs = sequences.split(",") if sequences else None
+        if sensor:
+            from dsnet_core.sensor import estimate_sensor
+
+            estimate = estimate_sensor(reader, data, seqs, name=Path(data).name or "sensor")
+            if out is not None:
+                estimate.card.save(out)
+        else:
+            summary = summarize(reader, seqs)
+    if sensor:
+        print_sensor(estimate, out)
+        return
     print_log_summary(summary)
+
+
+def print_sensor(estimate, out: Path | None) -> None:
+    """The estimated sensor, and what could not be estimated."""
+    import numpy as np
+
+    c = estimate.card
+    el = np.asarray(c.elevations_deg)
+    spacing = -np.diff(el) if el.size > 1 else np.zeros(1)
+    lines = [
+        f"sensor estimated from {estimate.frames_used} of {estimate.frames_total} scans of {c.source}",
+        f"beams: {c.beams}, elevations {el[0]:+.3f}° … {el[-1]:+.3f}° "
+        f"(spacing {spacing.min():.3f}–{spacing.max():.3f}°)",
+        "elevations (top first): " + " ".join(f"{v:+.3f}" for v in el),
+        f"azimuth: {c.azimuth_steps} firings per turn ({360.0 / c.azimuth_steps:.4f}°), "
+        f"scan direction {c.scan_direction or 'unknown'}, horizontal FOV {c.fov_deg:.1f}° "
+        f"centred at {c.fov_center_deg:+.1f}°",
+        f"mounting: {c.mount_height_m:.3f} m above the ground, pitch {c.mount_pitch_deg:+.2f}°, "
+        f"roll {c.mount_roll_deg:+.2f}°",
+        f"range: {c.min_range_m:.2f}–{c.max_range_m:.1f} m, range noise {100 * c.range_noise_m:.2f} cm, "
+        f"{c.returns_per_scan:.0f} returns per scan"
+        + (f", a scan every {c.frame_period_s:.3f} s" if c.frame_period_s else ""),
+        f"ray drop: {100 * c.ray_drop.rate:.2f} % of the rays that hit a surface; by range "
+        + ", ".join(
+            f"{a:g}–{b:g} m {100 * r:.1f} %"
+            for a, b, r in zip(
+                c.ray_drop.range_edges_m, c.ray_drop.range_edges_m[1:], c.ray_drop.by_range, strict=False
+            )
+        ),
+        "ray drop per beam (%): " + " ".join(f"{100 * v:.1f}" for v in c.ray_drop.per_beam),
+        "remission quantiles 0/25/50/75/100 %: "
+        + " ".join(f"{c.remission.quantiles[k]:.3f}" for k in (0, 5, 10, 15, 20)),
+    ]
+    for line in lines:
+        typer.echo(line)
+    if c.not_estimated:
+        typer.echo("could not estimate:")
+        for key, why in c.not_estimated.items():
+            typer.echo(f"  {key}: {why}")
+    else:
+        typer.echo("could not estimate: nothing")
+    if out is not None:
+        typer.echo(f"wrote the sensor card to {Path(out).resolve()} (dsnet synth OUT --sensor-card {out})")
 
 
 def print_log_summary(summary) -> None:

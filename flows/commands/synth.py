@@ -39,14 +39,33 @@ def synth(
         "any height and porosity, bark, people by trees and on grass, rough grass, patchy remission, "
         "flush kerbs, vans as cars). The classic street ignores it.",
     ),
+    sensor_card: Path = typer.Option(
+        None,
+        "--sensor-card",
+        help="Render with the LiDAR of this sensor card (YAML, from dsnet describe LOG --sensor --out).",
+    ),
+    like: Path = typer.Option(
+        None,
+        "--like",
+        help="Render with the LiDAR estimated from this log (as dsnet describe LOG --sensor); the card "
+        "is written to OUT/sensor_card.yaml.",
+    ),
 ) -> None:
     """Ray-cast a procedural street with a spinning LiDAR and write it in the SemanticKITTI layout."""
     from dsnet_core.synth.physics import parse_physics
 
+    card = None
     with errors_exit():
         check_output(out, "OUT", "folder")
         altered = parse_physics(physics)
-        generate(out, sequences, frames, seed, sensor, first_sequence, overwrite, style, altered, variety)
+        card = _card(sensor_card, like, sensor, physics)
+        generate(
+            out, sequences, frames, seed, sensor, first_sequence, overwrite, style, altered, variety, card
+        )
+        if like is not None:
+            card.save(Path(out) / "sensor_card.yaml")
+    if card is not None:
+        sensor = f"sensor card {card.name}: {card.beams} beams"
     what = sensor if style == "classic" else f"{style} street, {sensor}"
     what += "" if variety == "base" or style == "classic" else f", {variety} variety"
     what += ", altered physics" if physics else ""
@@ -64,6 +83,7 @@ def generate(
     style: str = "classic",
     physics: dict | None = None,
     variety: str = "base",
+    sensor_card=None,
 ) -> list[str]:
     """Write a synthetic log with a progress bar; returns the sequence names.
 
@@ -89,5 +109,31 @@ def generate(
             style=style,
             physics=physics,
             config=config,
+            sensor_card=sensor_card,
             on_frame=lambda _seq, _i: progress.advance(task),
         )
+
+
+def _card(path: Path | None, like: Path | None, sensor: str, physics: list[str] | None):
+    """The sensor card of ``--sensor-card`` or ``--like`` (None: neither).
+
+    Raises:
+        ConfigError: both given, or either with ``--sensor`` or ``--physics``.
+        SensorCardError, SensorEstimateError, DataFormatError: a bad card or log.
+    """
+    from dsnet_core.errors import ConfigError
+
+    if path is None and like is None:
+        return None
+    if path is not None and like is not None:
+        raise ConfigError("--sensor-card and --like both name the sensor: give one")
+    if sensor != "hdl64" or physics:
+        raise ConfigError("--sensor-card/--like fix the sensor: leave out --sensor and --physics")
+    if path is not None:
+        from dsnet_core.sensor import load_card
+
+        return load_card(path)
+    from dsnet_core.io.formats import open_log
+    from dsnet_core.sensor import estimate_sensor
+
+    return estimate_sensor(open_log(like), like, name=Path(like).resolve().name or "sensor").card

@@ -48,6 +48,9 @@ class DsnetTrainOptions(TrainOptions):
     stream_styles: str | None = Field(None, description="--stream: street styles (default: all).")
     stream_sensors: str | None = Field(None, description="--stream: sensors (default: all).")
     stream_workers: int = Field(1, ge=0, description="--stream: background render processes.")
+    stream_like: str | None = Field(
+        None, description="--stream: render with the LiDAR estimated from this log (dsnet describe --sensor)."
+    )
     stream_variety: Literal["base", "wide"] = Field(
         "base", description="--stream: the street styles' variety, base or wide."
     )
@@ -89,8 +92,19 @@ def stream_reader(options: DsnetTrainOptions):
         styles=tuple(styles) if styles else None,
         sensors=tuple(sensors) if sensors else None,
         config=SynthConfig(variety=options.stream_variety),
+        card=_stream_card(options.stream_like),
     )
     return StreamLog(options.seed, stream, options.stream, options.stream_workers)
+
+
+def _stream_card(log: str | None):
+    """The sensor card estimated from ``log`` (None: no log)."""
+    if not log:
+        return None
+    from dsnet_core.io.formats import open_log
+    from dsnet_core.sensor import estimate_sensor
+
+    return estimate_sensor(open_log(log), log).card
 
 
 def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None) -> str:

@@ -142,7 +142,7 @@ class LabelRequest(BaseModel):
         """
         names = pipeline.names() if names is None else names
         out = {name: dict(self.stages.get(name, {})) for name in names}
-        if "ingest" in out and "grid" not in out["ingest"]:
+        if "ingest" in out and out["ingest"].get("grid") is None:
             grid = self.the_method().model_grid(self.stages)
             if grid is not None:
                 out["ingest"]["grid"] = grid
@@ -157,14 +157,15 @@ def stage_config_line(stage: str, exc) -> str:
     """A stage config's pydantic ValidationError as one line naming the command-line option of each
     setting (``--clusterer 'bogus': not a kind (expected: 'dynamic_shift', ...)``); a setting no
     option gives is named ``stage.setting``."""
-    from tasks.methods import LabelSettings
+    from tasks.methods import METHODS
     from tasks.methods.base import flag
 
+    settings = {name for m in METHODS.values() for name in m.Settings.model_fields}
     parts = []
     for err in exc.errors():
         loc = [str(p) for p in err.get("loc", ())]
         head = loc[0] if loc else ""
-        name = flag(head) if head in LabelSettings.model_fields else f"stage {stage} setting {head or '?'}"
+        name = flag(head) if head in settings else f"stage {stage} setting {head or '?'}"
         ctx = err.get("ctx") or {}
         if err.get("type") == "union_tag_invalid":
             parts.append(

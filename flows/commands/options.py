@@ -107,10 +107,8 @@ def cli_type(annotation: Any) -> Any:
 
 def given(ctx: typer.Context, values: dict[str, Any]) -> dict[str, Any]:
     """Those of ``values`` given on the command line (or by the environment), not defaults."""
-    from click.core import ParameterSource
-
-    taken = (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT, ParameterSource.PROMPT)
-    return {k: v for k, v in values.items() if ctx.get_parameter_source(k) in taken}
+    taken = ("COMMANDLINE", "ENVIRONMENT", "PROMPT")  # by name: typer may carry its own click
+    return {k: v for k, v in values.items() if getattr(ctx.get_parameter_source(k), "name", None) in taken}
 
 
 def with_label_settings(methods: Callable[[], Iterable[Any]] | None = None):

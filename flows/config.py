@@ -272,9 +272,13 @@ def _check(out: dict[str, Any], method: Method, name, flags: bool = False, value
         key = ".".join(str(p) for p in err.get("loc", ()))
         raise ConfigError(f"{name(key)}{_message(err, values)}") from None
     try:
-        pipeline = method.pipeline(out["method_options"], out["stages"])
-    except ValueError as exc:
-        raise ConfigError(f"{name('method_options')}: {exc}") from None
+        pipeline, failed = method.pipeline(out["method_options"], out["stages"]), None
+    except ValueError as exc:  # the stages first: a bad one may be why (align.scans: x)
+        failed = ConfigError(f"{name('method_options')}: {exc}")
+        try:
+            pipeline = method.pipeline(out["method_options"])
+        except ValueError:
+            raise failed from None
     stages = pipeline.names()
     for stage, config in out["stages"].items():
         if stage not in stages:
@@ -298,6 +302,8 @@ def _check(out: dict[str, Any], method: Method, name, flags: bool = False, value
             err = exc.errors()[0]
             key = ".".join([stage, *(str(p) for p in err.get("loc", ()))])
             raise ConfigError(f"{name(key)}{_message(err, values)}") from None
+    if failed is not None:
+        raise failed
 
 
 def _message(err: Mapping[str, Any], value: bool) -> str:
@@ -306,7 +312,8 @@ def _message(err: Mapping[str, Any], value: bool) -> str:
     plain = value and not (isinstance(shown, dict | list) or shown is None)
     ctx = err.get("ctx") or {}
     if err.get("type") == "union_tag_invalid":
-        return f" {ctx.get('tag')!r}: not a kind it takes (expected: {ctx.get('expected_tags')})"
+        tag = f" {ctx.get('tag')!r}" if value else ""
+        return f"{tag}: not a kind it takes (expected: {ctx.get('expected_tags')})"
     msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
     return f"{f' {shown!r}' if plain else ''}: {msg}"
 

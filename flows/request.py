@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from tasks.base import RunOptions
 from tasks.methods import DEFAULT_METHOD, LabelSettings, Method, get_method
 from tasks.pipeline import Pipeline
+from tasks.run_config import RunConfig
 
 
 class LabelRequest(BaseModel):
@@ -148,9 +149,40 @@ class LabelRequest(BaseModel):
                 out["ingest"]["grid"] = grid
         return out
 
+    def run_config(
+        self, pipeline: Pipeline, log_format: str, sequences: list[str] | None = None, **record: Any
+    ) -> RunConfig:
+        """The run config a run of this request records and its fingerprints read (the one builder:
+        the run record, the pending check of ``dsnet label`` and ``serve``'s survey): the log where
+        it is from any directory, its detected ``log_format``, the reader options, the method and
+        its recorded options, each executed stage's config (:meth:`stage_configs`) and the run
+        options; ``record`` adds the run's own fields (``run_id``, ``code_version``, ...).
+
+        Raises:
+            CheckpointError: the named checkpoint has no model card.
+        """
+        return RunConfig(
+            **pipeline.record(),
+            data=resolved_location(str(self.data)),
+            format=log_format,
+            reader_options=dict(self.reader_options),
+            sequences=list(sequences or []),
+            stages=self.stage_configs(pipeline, self.order(pipeline)),
+            options=self.options,
+            **record,
+        )
+
     def dataset_name(self) -> str:
         """A short name of the log (its folder's name), for artifact keys."""
         return str(self.data).rstrip("/").rsplit("/", 1)[-1]
+
+
+def resolved_location(data: str) -> str:
+    """Where a log is, independent of the working directory: a local path made absolute, a URL as
+    given (what the run config records, so a run folder accepts its log from any directory)."""
+    from pathlib import Path
+
+    return data if "://" in data else str(Path(data).expanduser().resolve())
 
 
 def stage_config_line(stage: str, exc) -> str:

@@ -12,7 +12,6 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from dsnet_core.version import code_version
 from flows.config import CONFIG_FILE, resolved_config
-from flows.pending import resolved_location
 from flows.request import LabelRequest
 from storage.errors import NoRunConfigError, StoreError
 from storage.run import RunStore
@@ -71,17 +70,12 @@ def record_run(
     and each executed stage's settings (:meth:`~flows.request.LabelRequest.stage_configs`), and the
     run options.
     """
-    order = request.order(pipeline)
-    run = RunConfig(
+    run = request.run_config(
+        pipeline,
+        log_format,
+        sequences,
         run_id=run_id,
         code_version=code_version(),
-        **pipeline.record(),
-        data=resolved_location(request.data),
-        format=log_format,
-        reader_options=dict(request.reader_options),
-        sequences=list(sequences),
-        stages=request.stage_configs(pipeline, order),
-        options=request.options,
         host=socket.gethostname(),
         started=time.time(),
     )

@@ -184,7 +184,7 @@ def resolve(
         "stages": m.stage_settings(defaults),
     }
 
-    _lay(out, {k: v for k, v in file.items() if k != "method"}, m)  # the file
+    _lay(out, {k: v for k, v in file.items() if k != "method"})  # the file
     _check(out, m, lambda key: f"{source}: {key}", values=True)
 
     cli_options, cli_stages = m.options(typed), m.stage_settings(typed)  # the flags
@@ -193,13 +193,13 @@ def resolve(
         for dotted in m.stage_keys.get(flag_name, ()):
             stage, _, key = dotted.partition(".")
             _take(out["stages"].setdefault(stage, {}), cli_stages.get(stage, {}), key)
-    _lay(out, dict(given or {}), m)
+    _lay(out, dict(given or {}))
     _check(out, m, str, flags=True)
 
     for pair, path, value in parsed:  # the overrides
         if path == ["method"]:
             continue
-        _assign(out, path, value, m, pair)
+        _assign(out, path, value, pair)
     _check(out, m, lambda key: _set_name(parsed, key))
     out["stages"] = {k: v for k, v in out["stages"].items() if v}
     return LabelConfig.model_validate(out)
@@ -213,7 +213,7 @@ def _take(target: dict[str, Any], source: Mapping[str, Any], key: str) -> None:
         target.pop(key, None)
 
 
-def _lay(out: dict[str, Any], layer: Mapping[str, Any], method: Method) -> None:
+def _lay(out: dict[str, Any], layer: Mapping[str, Any]) -> None:
     """Merge ``layer`` (config keys) into ``out``: mappings key by key, the rest replaced."""
     for key, value in layer.items():
         if key == "stages":
@@ -232,7 +232,7 @@ def _lay(out: dict[str, Any], layer: Mapping[str, Any], method: Method) -> None:
             out[key] = copy.deepcopy(value)
 
 
-def _assign(out: dict[str, Any], path: list[str], value: Any, method: Method, pair: str) -> None:
+def _assign(out: dict[str, Any], path: list[str], value: Any, pair: str) -> None:
     """One ``--set``: a first key that is no :class:`LabelConfig` key names a stage."""
     if path[0] not in SECTIONS:
         path = ["stages", *path]

@@ -58,7 +58,11 @@ class LabelSettings(BaseModel):
     model_config = ConfigDict(extra="allow", frozen=True)
 
     scans: int | None = option(
-        None, "k: scans per 4D volume (1 = 3D panoptic); default: the method's.", METHOD, ge=1, le=16
+        None,
+        "k: scans per 4D volume (1 = 3D panoptic); default: the method's (`dsnet config dump`).",
+        METHOD,
+        ge=1,
+        le=16,
     )
     checkpoint: str | None = option(None, "Model checkpoint folder (default: the bundled model).", MODEL)
     estimate_poses: bool = option(

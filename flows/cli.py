@@ -6,6 +6,7 @@ from __future__ import annotations
 import typer
 
 from flows.commands.adapt import adapt_command
+from flows.commands.config import config
 from flows.commands.dashboard import dashboard
 from flows.commands.demo import demo
 from flows.commands.describe import describe
@@ -40,6 +41,7 @@ app.command()(dashboard)
 app.command()(serve)
 app.command(name="import-checkpoint")(import_checkpoint)
 app.add_typer(review, name="review")
+app.add_typer(config, name="config")
 
 
 def main() -> None:

@@ -4,31 +4,13 @@ only the sequences that are new or stale."""
 
 from __future__ import annotations
 
-from flows.request import LabelRequest
+from flows.request import LabelRequest, resolved_location
 from storage.errors import StoreError
 from storage.run import RunStore
 from tasks.run_config import RunConfig
 from tasks.runner import stage_fingerprint
 
-
-def resolved_location(data: str) -> str:
-    """Where a log is, independent of the working directory: a local path made absolute, a URL as
-    given (what the run config records, so a run folder accepts its log from any directory)."""
-    from pathlib import Path
-
-    return data if "://" in data else str(Path(data).expanduser().resolve())
-
-
-def request_run(request: LabelRequest, log_format: str) -> RunConfig:
-    """The run config a run of ``request`` would record (the part the fingerprints read)."""
-    pipeline = request.pipeline()
-    return RunConfig(
-        data=resolved_location(str(request.data)),
-        format=log_format,
-        reader_options=dict(request.reader_options),
-        stages=request.stage_configs(pipeline, request.order(pipeline)),
-        options=request.options,
-    )
+__all__ = ["pending_sequences", "resolved_location"]
 
 
 def pending_sequences(request: LabelRequest, sequences: list[str] | None = None) -> list[str]:
@@ -43,7 +25,7 @@ def pending_sequences(request: LabelRequest, sequences: list[str] | None = None)
     if request.force or request.from_stage:
         return list(sequences)
     store = RunStore(request.root, request.storage_options)
-    run = request_run(request, reader.format)
+    run = request.run_config(pipeline, reader.format)
     if not _report_intact(store):  # the run writes its config and report again: every sequence
         return list(sequences)
     return [seq for seq in sequences if not _finished(store, pipeline, request.order(pipeline), seq, run)]

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from tasks.base import RunOptions
 from tasks.methods import DEFAULT_METHOD, LabelSettings, Method, get_method
 from tasks.pipeline import Pipeline
+from tasks.run_config import RunConfig
 
 
 class LabelRequest(BaseModel):
@@ -142,29 +143,61 @@ class LabelRequest(BaseModel):
         """
         names = pipeline.names() if names is None else names
         out = {name: dict(self.stages.get(name, {})) for name in names}
-        if "ingest" in out and "grid" not in out["ingest"]:
+        if "ingest" in out and out["ingest"].get("grid") is None:
             grid = self.the_method().model_grid(self.stages)
             if grid is not None:
                 out["ingest"]["grid"] = grid
         return out
+
+    def run_config(
+        self, pipeline: Pipeline, log_format: str, sequences: list[str] | None = None, **record: Any
+    ) -> RunConfig:
+        """The run config a run of this request records and its fingerprints read (the one builder:
+        the run record, the pending check of ``dsnet label`` and ``serve``'s survey): the log where
+        it is from any directory, its detected ``log_format``, the reader options, the method and
+        its recorded options, each executed stage's config (:meth:`stage_configs`) and the run
+        options; ``record`` adds the run's own fields (``run_id``, ``code_version``, ...).
+
+        Raises:
+            CheckpointError: the named checkpoint has no model card.
+        """
+        return RunConfig(
+            **pipeline.record(),
+            data=resolved_location(str(self.data)),
+            format=log_format,
+            reader_options=dict(self.reader_options),
+            sequences=list(sequences or []),
+            stages=self.stage_configs(pipeline, self.order(pipeline)),
+            options=self.options,
+            **record,
+        )
 
     def dataset_name(self) -> str:
         """A short name of the log (its folder's name), for artifact keys."""
         return str(self.data).rstrip("/").rsplit("/", 1)[-1]
 
 
+def resolved_location(data: str) -> str:
+    """Where a log is, independent of the working directory: a local path made absolute, a URL as
+    given (what the run config records, so a run folder accepts its log from any directory)."""
+    from pathlib import Path
+
+    return data if "://" in data else str(Path(data).expanduser().resolve())
+
+
 def stage_config_line(stage: str, exc) -> str:
     """A stage config's pydantic ValidationError as one line naming the command-line option of each
     setting (``--clusterer 'bogus': not a kind (expected: 'dynamic_shift', ...)``); a setting no
     option gives is named ``stage.setting``."""
-    from tasks.methods import LabelSettings
+    from tasks.methods import METHODS
     from tasks.methods.base import flag
 
+    settings = {name for m in METHODS.values() for name in m.Settings.model_fields}
     parts = []
     for err in exc.errors():
         loc = [str(p) for p in err.get("loc", ())]
         head = loc[0] if loc else ""
-        name = flag(head) if head in LabelSettings.model_fields else f"stage {stage} setting {head or '?'}"
+        name = flag(head) if head in settings else f"stage {stage} setting {head or '?'}"
         ctx = err.get("ctx") or {}
         if err.get("type") == "union_tag_invalid":
             parts.append(

@@ -11,7 +11,7 @@ from typing import Any
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from dsnet_core.version import code_version
-from flows.pending import resolved_location
+from flows.config import CONFIG_FILE, resolved_config
 from flows.request import LabelRequest
 from storage.errors import NoRunConfigError, StoreError
 from storage.run import RunStore
@@ -62,28 +62,26 @@ def record_run(
     log_format: str,
     sequences: list[str],
 ) -> RunConfig:
-    """Write the run's config to the store (``run.json`` and ``runs/<id>.json``) and return it; the
-    caller holds the run's locks, so a run that lost them never rewrites ``run.json``.
+    """Write the run's config to the store (``run.json`` and ``runs/<id>.json``, and the resolved
+    config ``dsnet label --config`` takes back, ``config.yaml``: :func:`~flows.config.resolved_config`)
+    and return it; the caller holds the run's locks, so a run that lost them never rewrites them.
 
     The config holds what every stage reads back: the log, its format and reader options, the method
     and each executed stage's settings (:meth:`~flows.request.LabelRequest.stage_configs`), and the
     run options.
     """
-    order = request.order(pipeline)
-    run = RunConfig(
+    run = request.run_config(
+        pipeline,
+        log_format,
+        sequences,
         run_id=run_id,
         code_version=code_version(),
-        **pipeline.record(),
-        data=resolved_location(request.data),
-        format=log_format,
-        reader_options=dict(request.reader_options),
-        sequences=list(sequences),
-        stages=request.stage_configs(pipeline, order),
-        options=request.options,
         host=socket.gethostname(),
         started=time.time(),
     )
     store.write_run_config(run_id, run.model_dump(mode="json", exclude_none=True))
+    resolved = resolved_config(request, pipeline, log_format, sequences)
+    store.root.write_bytes(CONFIG_FILE, resolved.to_yaml().encode())
     return run
 
 

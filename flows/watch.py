@@ -27,7 +27,6 @@ from flows.publish import brief_line, dataset_key, publish
 from flows.request import LabelRequest
 from storage.errors import StoreError
 from storage.run import RunStore
-from tasks.run_config import RunConfig
 from tasks.runner import stage_fingerprint, stage_state
 
 
@@ -58,12 +57,7 @@ def survey(request: LabelRequest) -> Survey:
     first = order[0]
     store = RunStore(request.root, request.storage_options)
     reader = request.open_log()
-    run = RunConfig(
-        data=str(request.data),
-        format=reader.format,
-        reader_options=dict(request.reader_options),
-        stages=request.stage_configs(pipeline),
-    )
+    run = request.run_config(pipeline, reader.format)
     found = Survey()
     for seq in reader.sequences():
         try:

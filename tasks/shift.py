@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from dsnet_core.instance.clustering_config import ClustererConfig, DynamicShiftConfig
 from storage.contract import ArraySpec
@@ -43,6 +44,13 @@ class ShiftConfig(StageConfig):
 
     clusterer: ClustererConfig | None = Field(None)
     keep_seeds: bool = True
+
+    @field_validator("clusterer", mode="before")
+    @classmethod
+    def _kind_alone(cls, value: Any) -> Any:
+        """A kind's name alone (``meanshift``, as a config file or ``--set shift.clusterer=meanshift``
+        writes it) is that kind with its defaults."""
+        return {"kind": value} if isinstance(value, str) else value
 
 
 def effective_clusterer(config: ShiftConfig, scans: int):

@@ -7,20 +7,29 @@ from pathlib import Path
 
 import typer
 
+from flows.commands import options as o
 from flows.commands.common import errors_exit
 
 
+def _default_method():
+    from tasks.methods import get_method
+
+    return [get_method()]
+
+
+@o.with_label_settings(_default_method)
 def demo(
+    ctx: typer.Context,
     out: Path = typer.Option(
         Path("demo-out"), help="Folder for the log, the run store, predictions, scores."
     ),
     frames: int = typer.Option(10, min=1, help="Sweeps in the demo sequence."),
     seed: int = typer.Option(0, help="Seed of the synthetic log."),
-    scans: int = typer.Option(2, min=1, max=4, help="k, scans per volume (1 = 3D panoptic, 2 = 4D)."),
     sensor: str = typer.Option("hdl64", help="LiDAR model: hdl64 or vlp32 (faster)."),
-    checkpoint: Path = typer.Option(None, help="Use this checkpoint instead of the bundled model."),
+    settings: dict | None = None,
 ) -> None:
-    """Generate a small synthetic log, label it with the bundled model, export and score it."""
+    """Generate a small synthetic log, label it with the default method's bundled model (or
+    --checkpoint), export and score it; the default method's label settings are its options."""
     import json
     import shutil
 
@@ -30,9 +39,9 @@ def demo(
     from flows.commands.eval import print_result, score_predictions
     from flows.commands.label import print_stage_table, run_label
     from flows.commands.synth import generate
+    from flows.config import resolve
     from flows.export import export_semantickitti
-    from flows.request import LabelRequest
-    from tasks.methods import LabelSettings
+    from tasks.methods import LabelSettings, get_method
 
     log, run, pred = out / "log", out / "run", out / "predictions"
     typer.echo(f"[1/5] generating a synthetic {sensor} log: 1 sequence × {frames} frames, seed {seed}")
@@ -43,13 +52,20 @@ def demo(
     with errors_exit():
         print_log_summary(summarize(open_log(log)))
 
-    ckpt = _model(checkpoint, scans, out, log, run)
+    settings = dict(settings or {})
+    with errors_exit():
+        method = get_method()
+        scans = method.scans(method.settings_of(LabelSettings(**settings)))
+    checkpoint = settings.get("checkpoint")
+    ckpt = _model(Path(checkpoint) if checkpoint else None, scans, out, log, run)
     if ckpt is None:
         return
     typer.echo(f"[3/5] labelling with k = {scans} ({'3D' if scans == 1 else '4D'} panoptic) into {run}")
     with errors_exit():
-        settings = LabelSettings(scans=scans, checkpoint=str(ckpt))
-        request = LabelRequest.from_settings(settings, data=str(log), root=str(run), sequences=["00"])
+        config = resolve(
+            settings={**settings, "scans": scans, "checkpoint": str(ckpt)}, given={"sequences": ["00"]}
+        )
+        request = config.request(data=str(log), root=str(run))
     summary = run_label(request)
     print_stage_table(summary)
     if any(r["action"] == "failed" for r in summary):

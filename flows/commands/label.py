@@ -9,10 +9,11 @@ import typer
 
 from flows.commands import options as o
 from flows.commands.common import errors_exit, fail
-from tasks.methods import DEFAULT_METHOD
 
 
+@o.with_label_settings()
 def label(
+    ctx: typer.Context,
     data: str = typer.Argument(..., help="Log root (any supported format; see --format)."),
     run: str = typer.Option(..., "--run", help="Run store root: a folder or s3://bucket/prefix."),
     sequences: str = typer.Option(None, help="Comma-separated sequence names (default: all)."),
@@ -20,21 +21,9 @@ def label(
     reader_option: o.ReaderOption = None,
     topic: o.Topic = None,
     fixed_frame: o.FixedFrame = None,
-    max_points: o.MaxPoints = None,
-    estimate_poses: o.EstimatePoses = False,
-    method: o.MethodName = DEFAULT_METHOD,
-    scans: o.Scans = None,
-    stride: o.Stride = None,
-    clusterer: o.Clusterer = None,
-    temporal: o.Temporal = "auto",
-    refine: o.Refine = None,
-    semantic_prior: o.SemanticPrior = None,
-    prior_label_map: o.PriorLabelMap = None,
-    checkpoint: o.Checkpoint = None,
-    device: o.Device = None,
-    tta: o.Tta = 1,
-    tta_flip: o.TtaFlip = False,
-    equivariant: o.Equivariant = None,
+    method: o.MethodName = None,
+    config: o.Config = None,
+    overrides: o.Set = None,
     until: o.Until = None,
     from_stage: str = typer.Option(None, help="Recompute this stage and downstream.", rich_help_panel=o.RUN),
     force: bool = typer.Option(False, help="Recompute every stage.", rich_help_panel=o.RUN),
@@ -52,36 +41,25 @@ def label(
     dask_address: str = typer.Option(
         None, help="Blocks on a Dask scheduler (tcp://host:port).", rich_help_panel=o.SCALE
     ),
+    settings: dict | None = None,
 ) -> None:
-    """Label a log into a run store, resuming whatever is already done there (dsnet: ingest → align →
-    infer → shift → fuse → stitch|track → score; most: … → most → track → score; dpls: … → prior →
-    dpls → shift → fuse → stitch|track → score)."""
+    """Label a log into a run store, resuming whatever is already done there (each method's stages:
+    `dsnet config dump --method M`). Settings come from the method's defaults, then --config, then
+    the flags given, then --set; the run folder keeps them as config.yaml."""
     from pathlib import Path
 
     if "://" not in data and not Path(data).expanduser().exists():  # before the heavy imports
         fail(f"{data}: no such file or folder")
-    from flows.request import LabelRequest, parse_reader_options
 
     with errors_exit():
         if workers and dask_address:
             raise ValueError("give --workers or --dask-address, not both")
-        settings = o.label_settings(
-            scans, stride, checkpoint, clusterer, estimate_poses, max_points, device, tta, tta_flip,
-            equivariant, semantic_prior, prior_label_map, temporal, refine,
+        request = o.configured_request(
+            ctx, config, overrides, method, settings,
+            dict(format=format, sequences=sequences, reader_option=reader_option, topic=topic,
+                 fixed_frame=fixed_frame, on_error=on_error, block_size=block_size, lock_wait=lock_wait),
+            data=data, root=run, from_stage=from_stage, until=until, force=force,
         )  # fmt: skip
-        request = LabelRequest.from_settings(
-            settings,
-            data=data,
-            root=run,
-            sequences=sequences.split(",") if sequences else None,
-            format=format,
-            reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
-            method=method,
-            options={"on_error": on_error, "block_size": block_size, "lock_wait_s": lock_wait},
-            from_stage=from_stage,
-            until=until,
-            force=force,
-        )
     execute(request, workers, dask_address, debug)
 
 

@@ -9,10 +9,11 @@ import typer
 
 from flows.commands import options as o
 from flows.commands.common import errors_exit, fail
-from tasks.methods import DEFAULT_METHOD
 
 
+@o.with_label_settings()
 def serve(
+    ctx: typer.Context,
     watch: Path = typer.Option(
         ..., "--watch", help="Log root to watch (any format: each scene, scan folder or bag is a sequence)."
     ),
@@ -25,18 +26,9 @@ def serve(
     reader_option: o.ReaderOption = None,
     topic: o.Topic = None,
     fixed_frame: o.FixedFrame = None,
-    max_points: o.MaxPoints = None,
-    estimate_poses: o.EstimatePoses = False,
-    method: o.MethodName = DEFAULT_METHOD,
-    scans: o.Scans = None,
-    stride: o.Stride = None,
-    clusterer: o.Clusterer = None,
-    temporal: o.Temporal = "auto",
-    refine: o.Refine = None,
-    semantic_prior: o.SemanticPrior = None,
-    prior_label_map: o.PriorLabelMap = None,
-    checkpoint: o.Checkpoint = None,
-    device: o.Device = None,
+    method: o.MethodName = None,
+    config: o.Config = None,
+    overrides: o.Set = None,
     until: o.Until = None,
     check_every: float = typer.Option(
         30.0,
@@ -45,15 +37,22 @@ def serve(
         help="Seconds between checks that the server schedules this deployment's runs and that they "
         "succeed (a warning line when not).",
     ),
+    settings: dict | None = None,
 ) -> None:
     """Serve a Prefect deployment that labels, scores and publishes new or stale sequences on a schedule.
 
     Needs a Prefect server: `prefect server start --host 127.0.0.1` and PREFECT_API_URL pointing at it.
+    Takes the label settings, --config and --set of `dsnet label`.
     """
-    from flows.request import LabelRequest, parse_reader_options
     from flows.server import quiet_prefect_env
 
     quiet_prefect_env()
+    with errors_exit():  # the settings first: a bad one is refused without a server
+        request = o.configured_request(
+            ctx, config, overrides, method, settings,
+            dict(format=format, reader_option=reader_option, topic=topic, fixed_frame=fixed_frame),
+            data=str(watch.resolve()), root=runs, until=until,
+        )  # fmt: skip
     if not os.environ.get("PREFECT_API_URL"):
         fail(
             "schedules need a Prefect server: run `prefect server start --host 127.0.0.1` and "
@@ -63,20 +62,6 @@ def serve(
         from flows.services import check_prefect_api
 
         check_prefect_api(os.environ["PREFECT_API_URL"])
-        settings = o.label_settings(
-            scans, stride, checkpoint, clusterer, estimate_poses, max_points, device,
-            semantic_prior=semantic_prior, prior_label_map=prior_label_map, temporal=temporal,
-            refine=refine,
-        )  # fmt: skip
-        request = LabelRequest.from_settings(
-            settings,
-            data=str(watch.resolve()),
-            root=runs,
-            format=format,
-            reader_options=parse_reader_options(reader_option, topic=topic, fixed_frame=fixed_frame),
-            method=method,
-            until=until,
-        )
         request.check()  # a bad method, stage, format, option or model fails now, not at the first tick
         check_cron(cron)
     from flows.watch import serve as serve_deployment

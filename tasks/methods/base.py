@@ -37,27 +37,47 @@ def check_device(value: str | None) -> str | None:
     return value
 
 
+INPUT, METHOD, MODEL = "Input", "Method", "Model"
+"""Help panels of the label options (``json_schema_extra={"panel": ...}`` of a field)."""
+
+
+def option(default: Any, description: str, panel: str, **constraints: Any) -> Any:
+    """A label setting's field: its default, its help text and its help panel (``Input``,
+    ``Method``, ``Model``), with pydantic ``constraints`` (``ge=1``)."""
+    return Field(default, description=description, json_schema_extra={"panel": panel}, **constraints)
+
+
 class LabelSettings(BaseModel):
-    """The labelling settings of the command line (``dsnet label``, ``serve``, ``demo``), validated
-    once for all of them; each method takes the shared ones and those it lists in
-    :attr:`Method.settings`, and refuses the others by their flag."""
+    """The labelling settings of the command line (``dsnet label``, ``serve``, ``demo``): the ones
+    every method takes are fields here; a method declares the rest once, as fields of its own
+    subclass (:attr:`Method.Settings`), which the command line turns into its flags (each field's
+    description its help). A ``LabelSettings`` may carry any method's settings (extra fields);
+    :meth:`Method.settings_of` validates them against the method's model and refuses the others by
+    their flag."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="allow", frozen=True)
 
-    scans: int | None = Field(None, ge=1, le=16)
-    stride: int | None = Field(None, ge=1)
-    checkpoint: str | None = None
-    clusterer: str | None = None
-    estimate_poses: bool = False
-    max_points: int | None = Field(None, ge=1)
-    device: str | None = None
-    tta: int = Field(1, ge=1, le=64)
-    tta_flip: bool = False
-    equivariant: int | None = Field(None, ge=1)
-    semantic_prior: str | None = None
-    prior_label_map: str | None = None
-    temporal: Temporal = "auto"
-    refine: bool | None = None
+    scans: int | None = option(
+        None,
+        "k: scans per 4D volume (1 = 3D panoptic); default: the method's (`dsnet config dump`).",
+        METHOD,
+        ge=1,
+        le=16,
+    )
+    checkpoint: str | None = option(None, "Model checkpoint folder (default: the bundled model).", MODEL)
+    estimate_poses: bool = option(
+        False,
+        "KISS-ICP poses for sequences without poses.txt (the \\[odometry] extra; log poses win).",
+        INPUT,
+    )
+    max_points: int | None = option(None, "Refuse frames with more points (default 2,000,000).", INPUT, ge=1)
+    device: str | None = option(None, "cpu (default), cuda or cuda:N.", MODEL)
+    refine: bool | None = option(
+        None,
+        "Refine the whole sequence offline (static-world vote, one class per track, tracks joined "
+        "across gaps); default: the method's (docs/refine.md). Switching recomputes refine and score.",
+        METHOD,
+    )
 
     @field_validator("device")
     @classmethod
@@ -65,17 +85,45 @@ class LabelSettings(BaseModel):
         return check_device(value)
 
     def given(self) -> list[str]:
-        """The settings that differ from their defaults."""
-        return [name for name, f in type(self).model_fields.items() if getattr(self, name) != f.default]
+        """The settings that differ from their defaults (extra ones: every one given)."""
+        fields = type(self).model_fields
+        out = [name for name, f in fields.items() if getattr(self, name) != f.default]
+        return out + list(self.model_extra or {})
+
+    def given_values(self) -> dict[str, Any]:
+        """The settings given when it was made (its fields set explicitly and its extra ones)."""
+        return {name: getattr(self, name) for name in self.model_fields_set} | dict(self.model_extra or {})
 
 
-SHARED_SETTINGS = frozenset({"scans", "checkpoint", "estimate_poses", "max_points", "device", "refine"})
+class TemporalSettings(LabelSettings):
+    """Settings of a method whose volumes follow each other (``--stride``) and whose ids become
+    sequence-wide by stitching or tracking (``--temporal``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    stride: int | None = option(None, "Step between volumes (default k-1).", METHOD, ge=1)
+    temporal: Temporal = option(
+        "auto", "Sequence-wide ids: stitch (k > 1), track, or auto (track at k = 1, else stitch).", METHOD
+    )
+
+
+CLUSTERER_HELP = "dynamic_shift, meanshift, dbscan, hdbscan, bfs, or a JSON config"
+
+
+SHARED_SETTINGS = frozenset(LabelSettings.model_fields)
 """Settings every method takes."""
 
 
 def flag(name: str) -> str:
     """The command-line flag of a setting: ``tta_flip`` → ``--tta-flip``."""
     return "--" + name.replace("_", "-")
+
+
+INGEST_KEYS: dict[str, tuple[str, ...]] = {
+    "estimate_poses": ("ingest.estimate_poses",),
+    "max_points": ("ingest.max_points",),
+}
+"""The stage config keys the shared input settings write (every method shares ingest)."""
 
 
 class TrainOptions(BaseModel):
@@ -179,7 +227,10 @@ class Method(ABC):
         name: the name runs record and ``--method`` takes.
         title: one line for help texts.
         default_scans: k when ``--scans`` is not given.
-        settings: the :class:`LabelSettings` it takes besides :data:`SHARED_SETTINGS`.
+        Settings: its label settings, declared once (a :class:`LabelSettings` subclass: the shared
+            fields and its own); ``dsnet label``, ``serve`` and ``demo`` make their flags of it.
+        stage_keys: the stage config keys each setting writes (``"tta": ("infer.tta",)``): what a
+            flag given on the command line overrides in a ``--config`` file.
         TrainOptions: its trainer's options (a :class:`TrainOptions` subclass).
         data_parallel: whether its trainer runs under torchrun with several processes.
         adaptable: whether ``dsnet adapt`` can self-train its network on unlabelled logs (a network
@@ -189,7 +240,8 @@ class Method(ABC):
     name: ClassVar[str]
     title: ClassVar[str]
     default_scans: ClassVar[int]
-    settings: ClassVar[frozenset[str]] = frozenset()
+    Settings: ClassVar[type[LabelSettings]] = LabelSettings
+    stage_keys: ClassVar[Mapping[str, tuple[str, ...]]] = INGEST_KEYS
     TrainOptions: ClassVar[type[TrainOptions]] = TrainOptions
     data_parallel: ClassVar[bool] = False
     adaptable: ClassVar[bool] = False
@@ -207,16 +259,37 @@ class Method(ABC):
             ValueError: an option the method does not take, or a bad value.
         """
 
+    @property
+    def settings(self) -> frozenset[str]:
+        """The settings it takes besides :data:`SHARED_SETTINGS` (its :attr:`Settings`' own fields)."""
+        return frozenset(self.Settings.model_fields) - SHARED_SETTINGS
+
+    def settings_of(self, settings: LabelSettings) -> LabelSettings:
+        """``settings`` as this method's :attr:`Settings` (validated).
+
+        Raises:
+            ValueError: naming every given setting the method does not take.
+            pydantic.ValidationError: a bad value of one it takes.
+        """
+        if type(settings) is self.Settings and not settings.model_extra:
+            return settings
+        self.refuse(settings)
+        given = settings.given_values()
+        return self.Settings(**{k: v for k, v in given.items() if k in self.Settings.model_fields})
+
     def options(self, settings: LabelSettings) -> dict[str, Any]:
-        """The ``method_options`` a run records for ``settings``."""
-        out: dict[str, Any] = {} if settings.temporal == "auto" else {"temporal": settings.temporal}
+        """The ``method_options`` a run records for ``settings`` (keys are setting names)."""
+        settings = self.settings_of(settings)
+        temporal = getattr(settings, "temporal", "auto")
+        out: dict[str, Any] = {} if temporal == "auto" else {"temporal": temporal}
         if settings.refine is not None:
             out["refine"] = settings.refine
         return out
 
     @abstractmethod
     def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
-        """Per-stage config overrides for ``settings`` (after :meth:`refuse`)."""
+        """Per-stage config overrides for ``settings`` (an instance of :attr:`Settings`); a setting
+        writes only the keys :attr:`stage_keys` lists for it."""
 
     def stage_settings(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
         """Refuse the settings this method lacks, then :meth:`stage_configs`.
@@ -224,12 +297,11 @@ class Method(ABC):
         Raises:
             ValueError: naming every refused flag.
         """
-        self.refuse(settings)
-        return self.stage_configs(settings)
+        return self.stage_configs(self.settings_of(settings))
 
     def refuse(self, settings: LabelSettings) -> None:
         """Raise ValueError naming every given setting the method does not take."""
-        bad = [n for n in settings.given() if n not in SHARED_SETTINGS | self.settings]
+        bad = [n for n in settings.given() if n not in self.Settings.model_fields]
         if bad:
             raise ValueError(
                 f"{', '.join(flag(n) for n in bad)}: not a setting of method {self.name} "

@@ -12,9 +12,13 @@ from typing import TYPE_CHECKING, Any
 from pydantic import Field
 
 from tasks.methods.base import (
+    CLUSTERER_HELP,
+    INGEST_KEYS,
+    METHOD,
     LabelSettings,
     Method,
     StepCallback,
+    TemporalSettings,
     TrainOptions,
     absolute,
     align_settings,
@@ -22,6 +26,7 @@ from tasks.methods.base import (
     clusterer_config,
     grid_of,
     ingest_settings,
+    option,
     refined,
     resolve_temporal,
 )
@@ -38,11 +43,35 @@ class DplsTrainOptions(TrainOptions):
     scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume (the prior is aggregated too).")
 
 
+class DplsSettings(TemporalSettings):
+    """D-PLS's label settings: the clusterer and the semantic prior."""
+
+    clusterer: str | None = option(None, f"{CLUSTERER_HELP} (default dbscan).", METHOD)
+    semantic_prior: str | None = option(
+        None,
+        "Per-scan predictions of any network (ID.label or ID.npy in sequences/SEQ/predictions/ under "
+        "DIR); default: the bundled model's semantics.",
+        METHOD,
+    )
+    prior_label_map: str | None = option(
+        None, "Label map of --semantic-prior, a bundled name or a YAML (default: the log's).", METHOD
+    )
+
+
 class Dpls(Method):
     name = "dpls"
     title = "D-PLS (prior-conditioned instances)"
     default_scans = 2
-    settings = frozenset({"stride", "clusterer", "semantic_prior", "prior_label_map", "temporal"})
+    Settings = DplsSettings
+    stage_keys = INGEST_KEYS | {
+        "scans": ("align.scans",),
+        "stride": ("align.stride",),
+        "checkpoint": ("dpls.checkpoint",),
+        "device": ("prior.device", "dpls.device"),
+        "clusterer": ("shift.clusterer",),
+        "semantic_prior": ("prior.source", "prior.path", "prior.label_map"),
+        "prior_label_map": ("prior.label_map",),
+    }
     TrainOptions = DplsTrainOptions
 
     def pipeline(

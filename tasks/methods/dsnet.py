@@ -9,9 +9,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tasks.methods.base import (
+    CLUSTERER_HELP,
+    INGEST_KEYS,
+    METHOD,
+    MODEL,
     LabelSettings,
     Method,
     StepCallback,
+    TemporalSettings,
     TrainOptions,
     absolute,
     align_settings,
@@ -19,6 +24,7 @@ from tasks.methods.base import (
     clusterer_config,
     grid_of,
     ingest_settings,
+    option,
     refined,
     resolve_temporal,
 )
@@ -28,11 +34,30 @@ if TYPE_CHECKING:
     from tasks.pipeline import Pipeline
 
 
+class DsnetSettings(TemporalSettings):
+    """DS-Net's label settings: the clusterer, test-time augmentation, equivariance."""
+
+    clusterer: str | None = option(None, f"{CLUSTERER_HELP} (default dynamic_shift).", METHOD)
+    tta: int = option(1, "Average the semantics over N yaw rotations (1: off).", MODEL, ge=1, le=64)
+    tta_flip: bool = option(False, "With --tta: their mirror images too.", MODEL)
+    equivariant: int | None = option(None, "Require a C_n-equivariant checkpoint of this n.", MODEL, ge=1)
+
+
 class Dsnet(Method):
     name = "dsnet"
     title = "DS-Net (k = 1) / 4D-DS-Net (k ≥ 2)"
     default_scans = 2
-    settings = frozenset({"stride", "clusterer", "tta", "tta_flip", "equivariant", "temporal"})
+    Settings = DsnetSettings
+    stage_keys = INGEST_KEYS | {
+        "scans": ("align.scans",),
+        "stride": ("align.stride",),
+        "checkpoint": ("infer.checkpoint",),
+        "equivariant": ("infer.equivariant", "infer.checkpoint"),
+        "device": ("infer.device",),
+        "tta": ("infer.tta", "infer.tta_flip"),
+        "tta_flip": ("infer.tta", "infer.tta_flip"),
+        "clusterer": ("shift.clusterer",),
+    }
     TrainOptions = DsnetTrainOptions
     data_parallel = True
     adaptable = True

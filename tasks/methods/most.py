@@ -11,14 +11,18 @@ from typing import TYPE_CHECKING, Any, Literal
 from pydantic import Field
 
 from tasks.methods.base import (
+    INGEST_KEYS,
+    METHOD,
     LabelSettings,
     Method,
     StepCallback,
+    TemporalSettings,
     TrainOptions,
     absolute,
     check_options,
     grid_of,
     ingest_settings,
+    option,
     refined,
 )
 
@@ -39,11 +43,23 @@ class MostTrainOptions(TrainOptions):
     grid: str | None = Field(None, description="Cylinder cells 'ρ,φ,z' (default: the preset's).")
 
 
+class MostSettings(TemporalSettings):
+    """MOST's label settings: k counts the scan and its past ones; it reads every scan (stride 1)
+    and tracks (temporal track)."""
+
+    scans: int | None = option(None, "k: the scan and its k-1 past ones (default 3).", METHOD, ge=1, le=16)
+
+
 class Most(Method):
     name = "most"
     title = "MOST (modal centres + PointSegMLP, tracked)"
     default_scans = 3
-    settings = frozenset({"stride", "temporal"})
+    Settings = MostSettings
+    stage_keys = INGEST_KEYS | {
+        "scans": ("most.scans",),
+        "checkpoint": ("most.checkpoint",),
+        "device": ("most.device",),
+    }
     TrainOptions = MostTrainOptions
 
     def pipeline(

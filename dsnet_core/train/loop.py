@@ -188,19 +188,8 @@ class Trainer(TrainerSkeleton):
         self.step = StepConfig.of(config)
         self.stages = config.stages()
         self.dist, self.device = distributed.setup(config.device)
-        self.reader, self.val_reader = reader, val_reader
-        if isinstance(reader, StreamLog):  # one volume per sample; epochs draw their own windows
-            self.train_vols = reader.volumes(sequences)
-        else:
-            self.train_vols = volume_refs(reader, sequences, config.scans)
-        if not self.train_vols:
-            raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
-        if config.holdout > 0:
-            self.train_vols, self.val_vols = holdout_split(self.train_vols, config.holdout, config.seed)
-            self.val_reader = val_reader = reader
-            val_sequences = sorted({v[-1].sequence for v in self.val_vols})
-        else:
-            self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
+        self.reader = reader
+        val_sequences = self._volumes(sequences, val_reader, val_sequences)
         exists = prepare_out(self.out, resume, self.dist)
         if resume and exists:
             self.model, self.card = load_checkpoint(
@@ -209,55 +198,8 @@ class Trainer(TrainerSkeleton):
             log.info("resuming from %s (epochs done: %s)", self.out, self.card.epochs)
         else:
             torch.manual_seed(config.seed)
-            source = None
-            if init_from is not None:
-                self.model, parent = load_checkpoint(init_from, self.device, expect_label_map=label_map)
-                if lift is not None:  # a plain model's weights shared by the n rotated copies
-                    self.model = lift_model(self.model, *lift)
-                model_config = self.model.config
-                source = {
-                    "path": str(Path(init_from).resolve()),
-                    "weights_sha256": parent.weights_sha256,
-                    "epochs": parent.epochs,
-                    "scans": parent.training_data.get("scans"),
-                }
-                log.info("fine-tuning from %s (epochs %s)", init_from, parent.epochs)
-                inherited = load_shift_weights(init_from)
-                if inherited is not None:  # kept unless this run trains the shift stage again
-                    if self.dist.is_main:
-                        self.out.mkdir(parents=True, exist_ok=True)
-                        shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
-                    source["shift_weights"] = "inherited"
-            else:
-                self.model = DSNet(model_config).to(self.device)
-            counts, fingerprint = self.dist.from_main(  # every training file read once, on rank 0
-                lambda: (
-                    class_counts(reader, self.train_vols, label_map),
-                    reader.fingerprint()
-                    if isinstance(reader, StreamLog)
-                    else data_fingerprint(reader, self.train_vols),
-                )
-            )
-            self.card = ModelCard(
-                architecture=model_config.to_dict(),
-                class_map=class_map_of(label_map),
-                training_data={
-                    "root": str(reader.root),
-                    "sequences": list(sequences),
-                    "volumes": len(self.train_vols),
-                    "scans": config.scans,
-                    "fingerprint": fingerprint,
-                    "class_points": counts.tolist(),
-                    "val_root": str(val_reader.root),
-                    "val_sequences": list(val_sequences),
-                    "frames": [volume_name(v) for v in self.train_vols],
-                    **({"val_frames": [volume_name(v) for v in self.val_vols]} if config.holdout else {}),
-                    **({"init_from": source} if source else {}),
-                    **({"stream": reader.record()} if isinstance(reader, StreamLog) else {}),
-                },
-                epochs={},
-                metrics=[],
-            )
+            self.model, source = self._start(model_config, init_from, lift)
+            self.card = self._new_card(sequences, val_sequences, source)
         before = self.card.training_data.get("train_config", {}).get("world_size", 1)
         if self.card.epochs and before != self.dist.world_size:
             log.warning(
@@ -269,6 +211,78 @@ class Trainer(TrainerSkeleton):
         self.card.training_data["train_config"] = {**asdict(config), "world_size": self.dist.world_size}
         self.card.code_version = code_version()  # the code that trains now (a resumed card keeps the last)
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
+
+    def _volumes(self, sequences: list[str], val_reader: LogReader, val_sequences: list[str]) -> list[str]:
+        """Set the training and validation volumes (``holdout``: a seeded share of the training
+        ones validates); returns the validation sequences."""
+        reader, config = self.reader, self.cfg
+        self.val_reader = val_reader
+        if isinstance(reader, StreamLog):  # one volume per sample; epochs draw their own windows
+            self.train_vols = reader.volumes(sequences)
+        else:
+            self.train_vols = volume_refs(reader, sequences, config.scans)
+        if not self.train_vols:
+            raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
+        if config.holdout > 0:
+            self.train_vols, self.val_vols = holdout_split(self.train_vols, config.holdout, config.seed)
+            self.val_reader = reader
+            return sorted({v[-1].sequence for v in self.val_vols})
+        self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
+        return val_sequences
+
+    def _start(
+        self, model_config: ModelConfig, init_from: str | Path | None, lift: tuple[int, str] | None
+    ) -> tuple[DSNet, dict | None]:
+        """The network of a new run: fresh, or ``init_from``'s (lifted to C_n with ``lift``; its
+        shifting MLPs copied into ``out``), with the card's record of where it came from."""
+        if init_from is None:
+            return DSNet(model_config).to(self.device), None
+        model, parent = load_checkpoint(init_from, self.device, expect_label_map=self.label_map)
+        if lift is not None:  # a plain model's weights shared by the n rotated copies
+            model = lift_model(model, *lift)
+        source = {
+            "path": str(Path(init_from).resolve()),
+            "weights_sha256": parent.weights_sha256,
+            "epochs": parent.epochs,
+            "scans": parent.training_data.get("scans"),
+        }
+        log.info("fine-tuning from %s (epochs %s)", init_from, parent.epochs)
+        if load_shift_weights(init_from) is not None:  # kept unless this run trains the shift stage again
+            if self.dist.is_main:
+                self.out.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
+            source["shift_weights"] = "inherited"
+        return model, source
+
+    def _new_card(self, sequences: list[str], val_sequences: list[str], source: dict | None) -> ModelCard:
+        """The card of a new run: the data it trains and validates on and where it started."""
+        reader, stream = self.reader, isinstance(self.reader, StreamLog)
+        counts, fingerprint = self.dist.from_main(  # every training file read once, on rank 0
+            lambda: (
+                class_counts(reader, self.train_vols, self.label_map),
+                reader.fingerprint() if stream else data_fingerprint(reader, self.train_vols),
+            )
+        )
+        return ModelCard(
+            architecture=self.model.config.to_dict(),
+            class_map=class_map_of(self.label_map),
+            training_data={
+                "root": str(reader.root),
+                "sequences": list(sequences),
+                "volumes": len(self.train_vols),
+                "scans": self.cfg.scans,
+                "fingerprint": fingerprint,
+                "class_points": counts.tolist(),
+                "val_root": str(self.val_reader.root),
+                "val_sequences": list(val_sequences),
+                "frames": [volume_name(v) for v in self.train_vols],
+                **({"val_frames": [volume_name(v) for v in self.val_vols]} if self.cfg.holdout else {}),
+                **({"init_from": source} if source else {}),
+                **({"stream": reader.record()} if stream else {}),
+            },
+            epochs={},
+            metrics=[],
+        )
 
     # -- the schedule (the skeleton's hooks) ------------------------------------------------
     def schedule(self) -> list[str]:

@@ -146,7 +146,7 @@ class DplsTrainer(TrainerSkeleton):
                 raise ConfigError("dsnet train dpls starts from a trained DS-Net: pass --init-from")
             self.model, confusion = self._start(init_from, label_map, confusion)
         self.noise = PriorNoise(confusion, strength=config.strength, blobs_per_100k=config.blobs_per_100k)
-        self.card.training_data["train_config"] = asdict(config)
+        self.card.training_data["train_config"] = {**asdict(config), "world_size": self.dist.world_size}
         self.card.code_version = code_version()
 
     def _start(self, init_from, label_map: LabelMap, confusion) -> tuple[DSNet, np.ndarray]:

@@ -169,7 +169,7 @@ class MostTrainer(TrainerSkeleton):
                     **extra,
                 },
             )
-        self.card.training_data["train_config"] = asdict(train_config)
+        self.card.training_data["train_config"] = {**asdict(train_config), "world_size": self.dist.world_size}
         self.card.code_version = code_version()
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 

@@ -296,13 +296,13 @@ class TrainerSkeleton(ABC):
     ) -> float:
         """One epoch of ``stage``: every batch of :meth:`epoch_plan` through :meth:`loss` under
         autocast, backward (scaled for fp16), clipped, one optimiser step; ``net`` is the module as
-        trained (default: :meth:`wrap`'s, unwrapped). Rank 0's batch-norm statistics are copied to
-        every rank at the end.
+        trained (default: :meth:`wrap`'s). Rank 0's batch-norm statistics are copied to every rank
+        at the end.
 
         Returns:
             the mean step loss over all ranks.
         """
-        net = self.model if net is None else net
+        net = self.wrap(stage) if net is None else net
         plan = self.epoch_plan(stage, epoch)
         self.train_modes(stage)
         dtype = AMP_DTYPES[self.step.amp]

@@ -79,14 +79,22 @@ def test_no_import_cycle_between_modules():
     for node in sorted(graph):
         if node not in state:
             visit(node, [node])
-    # a package's __init__ re-exporting its submodules is not a cycle of meaning
     cycles = [c for c in cycles if not _init_reexport(c)]
     assert cycles == []
 
 
+REEXPORT_WAIVED = ("dsnet_core.synth",)
+"""Packages whose ``__init__`` re-exports a submodule that imports the package back (not a cycle of
+meaning, but waived by name: any other package's, e.g. a registry's, fails the test). Left:
+``dsnet_core.synth.layout`` imports ``dsnet_core.synth``, whose ``__init__`` imports ``.log``."""
+
+
 def _init_reexport(cycle: str) -> bool:
     names = cycle.split(" -> ")
-    return any(b.startswith(a + ".") or a.startswith(b + ".") for a, b in pairwise(names))
+    return any(
+        (b.startswith(a + ".") and a in REEXPORT_WAIVED) or (a.startswith(b + ".") and b in REEXPORT_WAIVED)
+        for a, b in pairwise(names)
+    )
 
 
 def test_no_stage_names_a_dataset():

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,7 +25,8 @@ class AdaptConfig:
         epochs: epochs per round (a checkpoint each); a round's steps are split evenly over them.
         lr: Adam learning rate; ``schedule`` ``constant`` or ``cosine`` (per round, down to
             ``min_lr_ratio · lr``; a function of the epoch index only, so a resume trains as an
-            uninterrupted run).
+            uninterrupted run: the trainer skeleton's
+            :class:`~dsnet_core.train.skeleton.StepConfig`).
         ema: the teacher's EMA decay per student step.
         mix: ``both`` (laser or polar per pair), ``laser``, ``polar`` or ``none``.
         label_weight: loss weight of corrected frames' points (pseudo-labels and source weigh 1
@@ -74,12 +74,6 @@ class AdaptConfig:
         """Student steps of 0-based ``epoch`` of a round (the first ``steps % epochs`` get one more)."""
         base, extra = divmod(self.steps, self.epochs)
         return base + (1 if epoch < extra else 0)
-
-    def epoch_lr(self, epoch: int) -> float:
-        if self.schedule == "constant" or self.epochs <= 1:
-            return self.lr
-        floor = self.lr * self.min_lr_ratio
-        return floor + 0.5 * (self.lr - floor) * (1.0 + math.cos(math.pi * epoch / (self.epochs - 1)))
 
     def changed(self, recorded: dict) -> list[str]:
         """The settings that differ from a card's record (``rounds`` may grow on a resume, and the

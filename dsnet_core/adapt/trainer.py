@@ -1,6 +1,7 @@
 """Self-training a DS-Net model on unlabelled target logs, on the shared trainer skeleton.
 
-Each round is a stage of the skeleton (``round1``, ``round2``, …) with ``epochs`` epochs. Before a
+Each round is a stage of the skeleton (``round1``, ``round2``, …) with ``epochs`` epochs; the
+skeleton runs the steps, this module supplies the mixed scans, the loss and the EMA step. Before a
 round's first epoch the teacher (the parent in round 1, then the EMA teacher of the round before,
 snapshotted in ``CKPT/rounds/R/teacher``) labels the target logs and the labeller selects the
 pseudo-labels (:class:`~dsnet_core.adapt.config.Labeller`). Every student step trains on one scan
@@ -50,7 +51,7 @@ from dsnet_core.model.checkpoint import (
 )
 from dsnet_core.model.losses import class_weights
 from dsnet_core.train.metrics import ConfusionMeter
-from dsnet_core.train.skeleton import StepCallback, TrainerSkeleton, prepare_out
+from dsnet_core.train.skeleton import EpochPlan, StepConfig, TrainerSkeleton, prepare_out
 
 log = logging.getLogger(__name__)
 STUDENT = "student.safetensors"
@@ -112,6 +113,7 @@ class AdaptTrainer(TrainerSkeleton):
         self.out, self.parent, self.cfg, self.labeller = Path(out), Path(parent), config, labeller
         self.source, self.corrected, self.heldout, self.source_val = source, corrected, heldout, source_val
         self.label_map, self.device = label_map, torch.device(config.device)
+        self.step = StepConfig.of(config)  # lr, its schedule and floor; one scan per step
         self.pool: list[Item] = []
         self.targets: list[Item] = []
         if prepare_out(self.out, resume):
@@ -189,9 +191,6 @@ class AdaptTrainer(TrainerSkeleton):
     def epochs_of(self, stage: str) -> int:
         return self.cfg.epochs
 
-    def epoch_lr(self, stage: str, epoch: int, total: int) -> float:
-        return self.cfg.epoch_lr(epoch)
-
     def stopped_early(self, stage: str, done: int) -> bool:
         return "early_stop" in self.card.training_data["adapt"]
 
@@ -242,8 +241,8 @@ class AdaptTrainer(TrainerSkeleton):
             os.replace(tmp, snap)
         return snap
 
-    def train_epoch(self, stage: str, epoch: int, opt, on_step: StepCallback | None, net=None) -> float:
-        """``steps_in(epoch)`` student steps on mixed target/source pairs, each followed by an EMA step."""
+    def epoch_plan(self, stage: str, epoch: int) -> EpochPlan:
+        """``steps_in(epoch)`` mixed scans: cycled target/source pairs, each mixed into two."""
         r, n = round_of(stage), self.cfg.steps_in(epoch)
         pairs = (n + 1) // 2
         rng = np.random.default_rng([self.cfg.seed, 31, r, epoch])
@@ -251,34 +250,28 @@ class AdaptTrainer(TrainerSkeleton):
         targets = [self.pool[i] for i in cycled(rng, len(self.pool), pairs)]
         sources = self.source.items(r, epoch, pairs)
         aug = rng if self.cfg.augment else None
-        net = net or self.model
-        self.model.train()
-        losses: list[float] = []
-        for t_item, s_item in zip(targets, sources, strict=True):
-            t = load_cloud(t_item, self.label_map, aug)
-            s = load_cloud(s_item, self.label_map, aug)
-            for cloud in mix_pair(t, s, self.cfg.mix, rng)[:2]:
-                if len(losses) == n:
-                    break
-                loss = adapt_loss(net, [cloud], self.class_weights, self.device)
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                opt.step()
-                ema_update(self.teacher, self.model, self.cfg.ema)
-                losses.append(float(loss.detach()))
-                if on_step is not None:
-                    on_step(stage, epoch + 1, len(losses), n, losses[-1])
-                if len(losses) % 25 == 0:
-                    log.info(
-                        "%s epoch %d step %d/%d: mean loss %.4f",
-                        stage,
-                        epoch + 1,
-                        len(losses),
-                        n,
-                        np.mean(losses[-25:]),
-                    )
+
+        def batches():
+            made = 0
+            for t_item, s_item in zip(targets, sources, strict=True):
+                t = load_cloud(t_item, self.label_map, aug)
+                s = load_cloud(s_item, self.label_map, aug)
+                for cloud in mix_pair(t, s, self.cfg.mix, rng)[:2]:
+                    if made == n:
+                        break
+                    made += 1
+                    yield [cloud]
+
+        return EpochPlan(n, batches(), rng, np.arange(0))
+
+    def loss(self, stage: str, batch: list, net: torch.nn.Module, rng: np.random.Generator) -> torch.Tensor:
+        return adapt_loss(net, batch, self.class_weights, self.device)
+
+    def after_step(self, stage: str) -> None:
+        ema_update(self.teacher, self.model, self.cfg.ema)  # the teacher follows every student step
+
+    def after_steps(self, stage: str) -> None:
         self.teacher.eval()
-        return float(np.mean(losses))
 
     def validate(self, stage: str | None = None) -> dict:
         """The teacher's mIoU on the source probe and on the held-back corrected frames (NaN with

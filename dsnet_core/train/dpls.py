@@ -9,14 +9,14 @@ segment-level class confusions drawn from the starting model's confusion matrix 
 data, scaled per sample between clean and harsher, plus blob errors at class boundaries.
 
 Checkpoints every epoch (weights, card, optimiser state, committed together: the shared
-:class:`~dsnet_core.train.skeleton.TrainerSkeleton`); ``resume`` continues after the last completed
-epoch with the same per-epoch seeds.
+:class:`~dsnet_core.train.skeleton.TrainerSkeleton`, which also runs the steps: batches, mixed
+precision, data-parallel under torchrun); ``resume`` continues after the last completed epoch with
+the same per-epoch seeds.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -32,9 +32,10 @@ from dsnet_core.model.checkpoint import ModelCard, code_version, load_checkpoint
 from dsnet_core.model.dpls import dpls_config, init_from_semantic, is_dpls, one_hot
 from dsnet_core.model.losses import instance_centres
 from dsnet_core.model.network import DSNet
+from dsnet_core.train import distributed
 from dsnet_core.train.data import augment, class_counts, data_fingerprint, load_sample, volume_refs
 from dsnet_core.train.prior_noise import PriorNoise, corrupt_prior, normalise_confusion
-from dsnet_core.train.skeleton import TrainerSkeleton, prepare_out
+from dsnet_core.train.skeleton import EpochPlan, StepConfig, TrainerSkeleton, check_step_settings, prepare_out
 
 log = logging.getLogger(__name__)
 STAGE = "dpls"
@@ -55,6 +56,8 @@ class DplsTrainConfig:
         huber_delta: the Huber loss's transition, metres.
         strength: (min, max) per-sample scale of the confusion matrix's errors.
         blobs_per_100k: boundary blobs per 100 000 points.
+        schedule, batch_size, amp, grad_clip: the step loop's
+            (:class:`~dsnet_core.train.skeleton.StepConfig`).
     """
 
     epochs: int = 6
@@ -67,12 +70,24 @@ class DplsTrainConfig:
     huber_delta: float = 1.0
     strength: tuple[float, float] = (0.0, 1.5)
     blobs_per_100k: float = 20.0
+    schedule: str = "cosine"
+    batch_size: int = 1
+    amp: str = "off"
+    grad_clip: float = 0.0
 
-    def epoch_lr(self, epoch: int) -> float:
-        if self.epochs <= 1:
-            return self.lr
-        floor = self.lr * self.min_lr_ratio
-        return floor + 0.5 * (self.lr - floor) * (1.0 + math.cos(math.pi * epoch / (self.epochs - 1)))
+    def __post_init__(self) -> None:
+        check_step_settings(self)
+
+
+@dataclass(frozen=True)
+class DplsSample:
+    """One training volume as a step takes it: points ``(N, C)`` float32 (augmented), the
+    corrupted prior ``(N,)`` int64, instance ids ``(N,)`` and the thing mask ``(N,)`` bool."""
+
+    points: np.ndarray
+    prior: np.ndarray
+    inst: np.ndarray
+    thing: np.ndarray
 
 
 def centre_loss(offsets, xyz, centres, valid, delta: float) -> torch.Tensor:
@@ -112,13 +127,14 @@ class DplsTrainer(TrainerSkeleton):
         confusion: np.ndarray | None = None,
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), config, label_map
-        self.device = torch.device(config.device)
+        self.step = StepConfig.of(config)
+        self.dist, self.device = distributed.setup(config.device)
         self.reader, self.val_reader = reader, val_reader
         self.train_vols = volume_refs(reader, sequences, config.scans)
         self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
         if not self.train_vols:
             raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
-        if prepare_out(self.out, resume):
+        if prepare_out(self.out, resume, self.dist):
             self.model, self.card = load_checkpoint(self.out, self.device, expect_label_map=label_map)
             if not is_dpls(self.model.config):
                 raise ConfigError(
@@ -130,7 +146,7 @@ class DplsTrainer(TrainerSkeleton):
                 raise ConfigError("dsnet train dpls starts from a trained DS-Net: pass --init-from")
             self.model, confusion = self._start(init_from, label_map, confusion)
         self.noise = PriorNoise(confusion, strength=config.strength, blobs_per_100k=config.blobs_per_100k)
-        self.card.training_data["train_config"] = asdict(config)
+        self.card.training_data["train_config"] = {**asdict(config), "world_size": self.dist.world_size}
         self.card.code_version = code_version()
 
     def _start(self, init_from, label_map: LabelMap, confusion) -> tuple[DSNet, np.ndarray]:
@@ -139,14 +155,17 @@ class DplsTrainer(TrainerSkeleton):
         model = DSNet(dpls_config(source.config)).to(self.device)
         fresh = init_from_semantic(model, source)
         measured = confusion is None
-        if measured:
-            confusion = measure_confusion(source, self.val_reader, self.val_vols, label_map, self.device)
+        if measured:  # once, on rank 0
+            confusion = self.dist.from_main(
+                lambda: measure_confusion(source, self.val_reader, self.val_vols, label_map, self.device)
+            )
         # the corruption draws from the matrix as the card records it, so a resumed run (which reads
         # it back from the card) corrupts exactly as the uninterrupted one
         confusion = np.round(np.asarray(confusion, np.float64), 6)
-        self.out.mkdir(parents=True, exist_ok=True)
-        if (Path(init_from) / SHIFT_WEIGHTS).is_file():  # its features start as the parent's
-            shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
+        if self.dist.is_main:
+            self.out.mkdir(parents=True, exist_ok=True)
+            if (Path(init_from) / SHIFT_WEIGHTS).is_file():  # its features start as the parent's
+                shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
         self.card = ModelCard(
             architecture=model.config.to_dict(),
             class_map=class_map_of(label_map),
@@ -180,9 +199,6 @@ class DplsTrainer(TrainerSkeleton):
     def epochs_of(self, stage: str) -> int:
         return self.cfg.epochs
 
-    def epoch_lr(self, stage: str, epoch: int, total: int) -> float:
-        return self.cfg.epoch_lr(epoch)
-
     def optimizer(self, stage: str) -> torch.optim.Optimizer:
         return torch.optim.Adam(self.model.parameters(), lr=self.cfg.lr)
 
@@ -195,39 +211,27 @@ class DplsTrainer(TrainerSkeleton):
             shutil.copyfile(self.out / SHIFT_WEIGHTS, staging / SHIFT_WEIGHTS)
         save_checkpoint(staging, self.model, self.card)
 
-    def train_epoch(self, stage: str, epoch: int, opt, on_step=None, net=None) -> float:
-        rng = np.random.default_rng([self.cfg.seed, 7, epoch])
-        torch.manual_seed(int(rng.integers(2**31)))
-        order = rng.permutation(len(self.train_vols))
-        self.model.train()
-        losses = []
-        for step, i in enumerate(order):
-            s = load_sample(self.reader, self.train_vols[i], self.label_map)
-            pts = augment(s.points, rng) if self.cfg.augment else s.points
-            prior = corrupt_prior(pts[:, :3], s.sem, s.inst, self.noise, rng)
-            loss = self._loss(pts, prior, s.inst, s.thing)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            losses.append(float(loss.detach()))
-            if on_step is not None:
-                on_step(STAGE, epoch + 1, step + 1, len(order), losses[-1])
-            if (step + 1) % 25 == 0:
-                log.info(
-                    "dpls epoch %d step %d/%d: loss %.4f",
-                    epoch + 1,
-                    step + 1,
-                    len(order),
-                    np.mean(losses[-25:]),
-                )
-        return float(np.mean(losses))
+    def epoch_plan(self, stage: str, epoch: int) -> EpochPlan:
+        return self.shuffled_plan([self.cfg.seed, 7, epoch], len(self.train_vols), self._sample)
 
-    def _loss(self, pts: np.ndarray, prior: np.ndarray, inst: np.ndarray, thing: np.ndarray) -> torch.Tensor:
-        cloud = torch.from_numpy(np.ascontiguousarray(pts)).to(self.device)
-        out = self.model([cloud], priors=[one_hot(prior, self.model.config.prior_channels).to(self.device)])
-        xyz = cloud[:, :3]
-        valid = torch.from_numpy(thing).to(self.device)
-        centres = instance_centres(xyz, torch.from_numpy(inst).to(self.device), valid)
+    def _sample(self, i: int, rng: np.random.Generator) -> DplsSample:
+        """Volume ``i``, augmented, with its ground truth corrupted into the prior."""
+        s = load_sample(self.reader, self.train_vols[i], self.label_map)
+        pts = augment(s.points, rng) if self.cfg.augment else s.points
+        prior = corrupt_prior(pts[:, :3], s.sem, s.inst, self.noise, rng)
+        return DplsSample(np.ascontiguousarray(pts), prior, s.inst, s.thing)
+
+    def loss(
+        self, stage: str, batch: list[DplsSample], net: torch.nn.Module, rng: np.random.Generator
+    ) -> torch.Tensor:
+        """The Huber centre loss of the batch's thing points (instances kept apart per sample)."""
+        clouds = [torch.from_numpy(s.points).to(self.device) for s in batch]
+        c = self.model.config.prior_channels
+        out = net(clouds, priors=[one_hot(s.prior, c).to(self.device) for s in batch])
+        xyz = torch.cat([cloud[:, :3] for cloud in clouds])
+        keys = np.concatenate([s.inst + (b << 40) * (s.inst > 0) for b, s in enumerate(batch)])
+        valid = torch.from_numpy(np.concatenate([s.thing for s in batch])).to(self.device)
+        centres = instance_centres(xyz, torch.from_numpy(keys).to(self.device), valid)
         return centre_loss(out.offsets, xyz, centres, valid, self.cfg.huber_delta)
 
     def validate(self, stage: str | None = None) -> dict:

@@ -12,7 +12,6 @@ and rank 0 alone writes the checkpoint while the others wait.
 from __future__ import annotations
 
 import logging
-import math
 import shutil
 import time
 from dataclasses import asdict, dataclass, field
@@ -44,7 +43,6 @@ from dsnet_core.model.network import DSNet, NetOutput, lift_model
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.train import distributed
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
-from dsnet_core.train.distributed import shard
 from dsnet_core.train.finetune import early_stop, holdout_split, stage_start, volume_name
 from dsnet_core.train.metrics import ConfusionMeter
 from dsnet_core.train.shifting import (
@@ -54,7 +52,14 @@ from dsnet_core.train.shifting import (
     shift_samples,
     train_shift,
 )
-from dsnet_core.train.skeleton import StepCallback, TrainerSkeleton, prepare_out
+from dsnet_core.train.skeleton import (
+    EpochPlan,
+    StepCallback,
+    StepConfig,
+    TrainerSkeleton,
+    check_step_settings,
+    prepare_out,
+)
 from dsnet_core.train.stream import StreamLog
 
 log = logging.getLogger(__name__)
@@ -93,17 +98,15 @@ class TrainConfig:
         seed: the run's seed (augmentation and shuffling per epoch derive from it).
         augment: apply yaw/flip/scale/translation augmentation.
         device: "cpu" or "cuda" (under torchrun each process takes ``cuda:LOCAL_RANK``).
-        schedule: "cosine" (per epoch, from ``lr`` down to ``min_lr_ratio * lr`` over each stage's
-            epochs) or "constant". The rate is a function of the epoch index only, so a resumed run
-            trains exactly as an uninterrupted one.
-        min_lr_ratio: the cosine schedule's floor as a fraction of ``lr``.
+        schedule, min_lr_ratio, batch_size, amp, grad_clip: the step loop's
+            (:class:`~dsnet_core.train.skeleton.StepConfig`; the rate is a function of the epoch
+            index only, so a resumed run trains exactly as an uninterrupted one).
         freeze_backbone: fine-tuning: the semantic stage trains only the semantic head (point MLP
             and U-Net frozen, their batch-norm statistics fixed); False trains everything.
         holdout: fraction of the training volumes held back for validation (seeded choice, at
             least one when there are two or more); 0 validates on the given validation data.
-        amp: mixed precision of the semantic and offset stages' forward passes: ``off``, ``bf16``
-            (CPU and CUDA) or ``fp16`` (CUDA, with a gradient scaler); weights and optimiser state
-            stay float32, and the card records the choice (``train_config.amp``).
+        amp: mixed precision of the semantic, offset and joint stages' forward passes (the card
+            records the choice, ``train_config.amp``).
         patience: early stop: end a stage after this many epochs without a better validation
             score (mIoU for the semantic stage, offset L1 for the instance head) and keep the best
             epoch's weights; 0 runs every epoch.
@@ -123,23 +126,14 @@ class TrainConfig:
     holdout: float = 0.0
     patience: int = 0
     amp: str = "off"
+    grad_clip: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.amp not in AMP_DTYPES:
-            raise ConfigError(f"unknown --amp {self.amp!r}: choose one of {sorted(AMP_DTYPES)}")
-        if self.schedule not in ("cosine", "constant"):
-            raise ConfigError(f"unknown learning-rate schedule '{self.schedule}' (cosine or constant)")
+        check_step_settings(self)
         if not 0.0 <= self.holdout < 1.0:
             raise ConfigError(f"holdout must be a fraction in [0, 1), got {self.holdout}")
         if self.patience < 0:
             raise ConfigError(f"patience must be >= 0, got {self.patience}")
-
-    def epoch_lr(self, epoch: int, total: int) -> float:
-        """Learning rate of (0-based) ``epoch`` out of ``total`` in a stage."""
-        if self.schedule == "constant" or total <= 1:
-            return self.lr
-        floor = self.lr * self.min_lr_ratio
-        return floor + 0.5 * (self.lr - floor) * (1.0 + math.cos(math.pi * epoch / (total - 1)))
 
     def stages(self) -> list[str]:
         if self.stage == "all":
@@ -149,10 +143,6 @@ class TrainConfig:
                 f"unknown training stage '{self.stage}' (choose semantic, offset, joint, shift or all)"
             )
         return [self.stage]
-
-
-AMP_DTYPES = {"off": None, "bf16": torch.bfloat16, "fp16": torch.float16}
-"""``TrainConfig.amp`` → the autocast dtype."""
 
 
 class Trainer(TrainerSkeleton):
@@ -195,21 +185,11 @@ class Trainer(TrainerSkeleton):
         lift: tuple[int, str] | None = None,
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), config, label_map
+        self.step = StepConfig.of(config)
         self.stages = config.stages()
         self.dist, self.device = distributed.setup(config.device)
-        self.reader, self.val_reader = reader, val_reader
-        if isinstance(reader, StreamLog):  # one volume per sample; epochs draw their own windows
-            self.train_vols = reader.volumes(sequences)
-        else:
-            self.train_vols = volume_refs(reader, sequences, config.scans)
-        if not self.train_vols:
-            raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
-        if config.holdout > 0:
-            self.train_vols, self.val_vols = holdout_split(self.train_vols, config.holdout, config.seed)
-            self.val_reader = val_reader = reader
-            val_sequences = sorted({v[-1].sequence for v in self.val_vols})
-        else:
-            self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
+        self.reader = reader
+        val_sequences = self._volumes(sequences, val_reader, val_sequences)
         exists = prepare_out(self.out, resume, self.dist)
         if resume and exists:
             self.model, self.card = load_checkpoint(
@@ -218,55 +198,8 @@ class Trainer(TrainerSkeleton):
             log.info("resuming from %s (epochs done: %s)", self.out, self.card.epochs)
         else:
             torch.manual_seed(config.seed)
-            source = None
-            if init_from is not None:
-                self.model, parent = load_checkpoint(init_from, self.device, expect_label_map=label_map)
-                if lift is not None:  # a plain model's weights shared by the n rotated copies
-                    self.model = lift_model(self.model, *lift)
-                model_config = self.model.config
-                source = {
-                    "path": str(Path(init_from).resolve()),
-                    "weights_sha256": parent.weights_sha256,
-                    "epochs": parent.epochs,
-                    "scans": parent.training_data.get("scans"),
-                }
-                log.info("fine-tuning from %s (epochs %s)", init_from, parent.epochs)
-                inherited = load_shift_weights(init_from)
-                if inherited is not None:  # kept unless this run trains the shift stage again
-                    if self.dist.is_main:
-                        self.out.mkdir(parents=True, exist_ok=True)
-                        shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
-                    source["shift_weights"] = "inherited"
-            else:
-                self.model = DSNet(model_config).to(self.device)
-            counts, fingerprint = self.dist.from_main(  # every training file read once, on rank 0
-                lambda: (
-                    class_counts(reader, self.train_vols, label_map),
-                    reader.fingerprint()
-                    if isinstance(reader, StreamLog)
-                    else data_fingerprint(reader, self.train_vols),
-                )
-            )
-            self.card = ModelCard(
-                architecture=model_config.to_dict(),
-                class_map=class_map_of(label_map),
-                training_data={
-                    "root": str(reader.root),
-                    "sequences": list(sequences),
-                    "volumes": len(self.train_vols),
-                    "scans": config.scans,
-                    "fingerprint": fingerprint,
-                    "class_points": counts.tolist(),
-                    "val_root": str(val_reader.root),
-                    "val_sequences": list(val_sequences),
-                    "frames": [volume_name(v) for v in self.train_vols],
-                    **({"val_frames": [volume_name(v) for v in self.val_vols]} if config.holdout else {}),
-                    **({"init_from": source} if source else {}),
-                    **({"stream": reader.record()} if isinstance(reader, StreamLog) else {}),
-                },
-                epochs={},
-                metrics=[],
-            )
+            self.model, source = self._start(model_config, init_from, lift)
+            self.card = self._new_card(sequences, val_sequences, source)
         before = self.card.training_data.get("train_config", {}).get("world_size", 1)
         if self.card.epochs and before != self.dist.world_size:
             log.warning(
@@ -279,15 +212,84 @@ class Trainer(TrainerSkeleton):
         self.card.code_version = code_version()  # the code that trains now (a resumed card keeps the last)
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 
+    def _volumes(self, sequences: list[str], val_reader: LogReader, val_sequences: list[str]) -> list[str]:
+        """Set the training and validation volumes (``holdout``: a seeded share of the training
+        ones validates); returns the validation sequences."""
+        reader, config = self.reader, self.cfg
+        self.val_reader = val_reader
+        if isinstance(reader, StreamLog):  # one volume per sample; epochs draw their own windows
+            self.train_vols = reader.volumes(sequences)
+        else:
+            self.train_vols = volume_refs(reader, sequences, config.scans)
+        if not self.train_vols:
+            raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
+        if config.holdout > 0:
+            self.train_vols, self.val_vols = holdout_split(self.train_vols, config.holdout, config.seed)
+            self.val_reader = reader
+            return sorted({v[-1].sequence for v in self.val_vols})
+        self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
+        return val_sequences
+
+    def _start(
+        self, model_config: ModelConfig, init_from: str | Path | None, lift: tuple[int, str] | None
+    ) -> tuple[DSNet, dict | None]:
+        """The network of a new run: fresh, or ``init_from``'s (lifted to C_n with ``lift``; its
+        shifting MLPs copied into ``out``), with the card's record of where it came from."""
+        if init_from is None:
+            return DSNet(model_config).to(self.device), None
+        model, parent = load_checkpoint(init_from, self.device, expect_label_map=self.label_map)
+        if lift is not None:  # a plain model's weights shared by the n rotated copies
+            model = lift_model(model, *lift)
+        source = {
+            "path": str(Path(init_from).resolve()),
+            "weights_sha256": parent.weights_sha256,
+            "epochs": parent.epochs,
+            "scans": parent.training_data.get("scans"),
+        }
+        log.info("fine-tuning from %s (epochs %s)", init_from, parent.epochs)
+        if load_shift_weights(init_from) is not None:  # kept unless this run trains the shift stage again
+            if self.dist.is_main:
+                self.out.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(Path(init_from) / SHIFT_WEIGHTS, self.out / SHIFT_WEIGHTS)
+            source["shift_weights"] = "inherited"
+        return model, source
+
+    def _new_card(self, sequences: list[str], val_sequences: list[str], source: dict | None) -> ModelCard:
+        """The card of a new run: the data it trains and validates on and where it started."""
+        reader, stream = self.reader, isinstance(self.reader, StreamLog)
+        counts, fingerprint = self.dist.from_main(  # every training file read once, on rank 0
+            lambda: (
+                class_counts(reader, self.train_vols, self.label_map),
+                reader.fingerprint() if stream else data_fingerprint(reader, self.train_vols),
+            )
+        )
+        return ModelCard(
+            architecture=self.model.config.to_dict(),
+            class_map=class_map_of(self.label_map),
+            training_data={
+                "root": str(reader.root),
+                "sequences": list(sequences),
+                "volumes": len(self.train_vols),
+                "scans": self.cfg.scans,
+                "fingerprint": fingerprint,
+                "class_points": counts.tolist(),
+                "val_root": str(self.val_reader.root),
+                "val_sequences": list(val_sequences),
+                "frames": [volume_name(v) for v in self.train_vols],
+                **({"val_frames": [volume_name(v) for v in self.val_vols]} if self.cfg.holdout else {}),
+                **({"init_from": source} if source else {}),
+                **({"stream": reader.record()} if stream else {}),
+            },
+            epochs={},
+            metrics=[],
+        )
+
     # -- the schedule (the skeleton's hooks) ------------------------------------------------
     def schedule(self) -> list[str]:
         return self.stages
 
     def epochs_of(self, stage: str) -> int:
         return self.cfg.epochs.get(stage, 0)
-
-    def epoch_lr(self, stage: str, epoch: int, total: int) -> float:
-        return self.cfg.epoch_lr(epoch, total)
 
     def run_stage(self, stage: str, done: int, total: int, on_step: StepCallback | None) -> None:
         """The shifting MLPs train their own way; the other stages are the skeleton's loop."""
@@ -375,7 +377,7 @@ class Trainer(TrainerSkeleton):
                 wrap=lambda m: self.dist.wrap(m, self.device),
             )
             self.dist.sync_buffers(module)  # rank 0's batch-norm statistics, saved and validated
-            record = {"stage": "shift", "epoch": epoch + 1, "train_loss": self._mean(losses)}
+            record = {"stage": "shift", "epoch": epoch + 1, "train_loss": self.mean_loss(losses)}
             record["val_miou"] = last_miou
             errors = np.concatenate(self.dist.all_gather(shift_errors(module, val, self.device)))
             record["val_shift_l1"] = float(np.mean(errors)) if len(errors) else float("nan")
@@ -392,7 +394,7 @@ class Trainer(TrainerSkeleton):
         params = [p for p in self.model.parameters() if p.requires_grad]
         return torch.optim.Adam(params, lr=self.cfg.lr)
 
-    def _set_modes(self, stage: str) -> None:
+    def train_modes(self, stage: str) -> None:
         self.model.train()
         if stage == "offset":  # frozen backbone: batch-norm statistics stay fixed
             for mod in (self.model.point_encoder, self.model.backbone, self.model.sem_head):
@@ -401,76 +403,31 @@ class Trainer(TrainerSkeleton):
             self.model.point_encoder.eval()
             self.model.backbone.eval()
 
-    def train_epoch(
-        self,
-        stage: str,
-        epoch: int,
-        opt: torch.optim.Optimizer,
-        on_step: StepCallback | None,
-        net: torch.nn.Module | None = None,
-    ) -> float:
-        """One epoch of ``stage``; ``net`` is the model as trained (its DDP wrapper under torchrun).
-
-        Returns:
-            the mean step loss over all ranks.
-        """
+    def epoch_plan(self, stage: str, epoch: int) -> EpochPlan:
+        """The epoch's volumes in a seeded order (a stream's its own never-seen window), each
+        loaded and augmented as its step comes."""
         stage_idx = STAGE_SEED[stage]
         if isinstance(self.reader, StreamLog):  # never-seen samples, a function of (stage, epoch)
             self.train_vols = self.reader.volumes(self.reader.window(stage_idx, epoch))
-        rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch])
-        torch.manual_seed(int(rng.integers(2**31)))
-        order = rng.permutation(len(self.train_vols))
-        if self.dist.active:  # this rank's shard of the epoch, and its own augmentation draws
-            order = shard(order, self.dist.world_size, self.dist.rank)
-            rng = np.random.default_rng([self.cfg.seed, stage_idx, epoch, self.dist.rank])
+        plan = self.shuffled_plan([self.cfg.seed, stage_idx, epoch], len(self.train_vols), self._sample)
         if isinstance(self.reader, StreamLog):
-            self.reader.prefetch([self.train_vols[i][-1].sequence for i in order])
-        bs = self.cfg.batch_size
-        steps = (len(order) + bs - 1) // bs
-        self._set_modes(stage)
-        losses = []
-        dtype = AMP_DTYPES[self.cfg.amp]
-        scaler = torch.amp.GradScaler(self.device.type, enabled=self.cfg.amp == "fp16")
-        for step in range(steps):
-            samples = [
-                load_sample(self.reader, self.train_vols[i], self.label_map)
-                for i in order[step * bs : (step + 1) * bs]
-            ]
-            if self.cfg.augment:
-                samples = [_with_points(s, augment(s.points, rng)) for s in samples]
-            with torch.autocast(self.device.type, dtype=dtype or torch.float32, enabled=dtype is not None):
-                loss = self._loss(stage, samples, net)
-            opt.zero_grad(set_to_none=True)
-            scaler.scale(loss.float()).backward()
-            scaler.step(opt)
-            scaler.update()
-            losses.append(float(loss.detach()))
-            if on_step is not None:
-                on_step(stage, epoch + 1, step + 1, steps, losses[-1])
-            if (step + 1) % 25 == 0:
-                log.info(
-                    "%s epoch %d step %d/%d: mean loss %.4f",
-                    stage,
-                    epoch + 1,
-                    step + 1,
-                    steps,
-                    np.mean(losses[-25:]),
-                )
-        self.dist.sync_buffers(self.model)  # rank 0's batch-norm statistics, saved and validated
-        return self._mean(losses)
+            self.reader.prefetch([self.train_vols[i][-1].sequence for i in plan.order])
+        return plan
 
-    def _mean(self, losses: list[float]) -> float:
-        """Mean of every rank's step losses (the same value on every rank)."""
-        return float(np.mean(np.concatenate(self.dist.all_gather(losses))))
+    def _sample(self, i: int, rng: np.random.Generator) -> Sample:
+        s = load_sample(self.reader, self.train_vols[i], self.label_map)
+        return _with_points(s, augment(s.points, rng)) if self.cfg.augment else s
 
-    def _loss(self, stage: str, samples: list[Sample], net: torch.nn.Module | None = None) -> torch.Tensor:
+    def loss(
+        self, stage: str, batch: list[Sample], net: torch.nn.Module | None = None, rng=None
+    ) -> torch.Tensor:
         """The stage's loss: semantic, offset (eq. 1, or eq. 9 when equivariant) or their sum (joint)."""
-        clouds = [torch.from_numpy(s.points).to(self.device) for s in samples]
+        clouds = [torch.from_numpy(s.points).to(self.device) for s in batch]
         out = (self.model if net is None else net)(clouds, instance=stage != "semantic")
         if stage == "semantic":
-            return self._semantic_loss(out, samples)
-        loss = self._offset_loss(out, clouds, samples)
-        return loss + self._semantic_loss(out, samples) if stage == "joint" else loss
+            return self._semantic_loss(out, batch)
+        loss = self._offset_loss(out, clouds, batch)
+        return loss + self._semantic_loss(out, batch) if stage == "joint" else loss
 
     def _semantic_loss(self, out: NetOutput, samples: list[Sample]) -> torch.Tensor:
         sem = torch.from_numpy(np.concatenate([s.sem for s in samples])).to(self.device)

@@ -1,8 +1,9 @@
 """MOST's two-stage training (paper, implementation details): ``detect`` trains the network on
 detection, segmentation and velocity (eq. 1, 2, 4); ``member`` trains PointSegMLP (eq. 3) with
 everything else frozen. Checkpoints every epoch; a killed run resumes from the last completed
-epoch with the optimiser state of that epoch, every epoch's files committed together (the shared
-:class:`~dsnet_core.train.skeleton.TrainerSkeleton`).
+epoch with the optimiser state of that epoch, every epoch's files committed together. The shared
+:class:`~dsnet_core.train.skeleton.TrainerSkeleton` runs the steps (batches, mixed precision,
+data-parallel under torchrun); this module supplies the samples and the two losses.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from dsnet_core.most.config import DEFAULT_SCANS, MostConfig
 from dsnet_core.most.data import MostSample, SequenceTargets
 from dsnet_core.most.losses import membership_loss
 from dsnet_core.most.network import MostNet, load_backbone_from
+from dsnet_core.train import distributed
 from dsnet_core.train.data import class_counts, data_fingerprint, volume_refs
 from dsnet_core.train.metrics import ConfusionMeter
 from dsnet_core.train.most_steps import (
@@ -34,7 +36,7 @@ from dsnet_core.train.most_steps import (
     jittered_detections,
     member_pairs,
 )
-from dsnet_core.train.skeleton import TrainerSkeleton, prepare_out
+from dsnet_core.train.skeleton import EpochPlan, StepConfig, TrainerSkeleton, check_step_settings, prepare_out
 
 log = logging.getLogger(__name__)
 MOST_STAGES = ("detect", "member")
@@ -65,6 +67,9 @@ class MostTrainConfig:
         lr: Adam learning rate (both stages; cosine per stage down to ``min_lr_ratio · lr``).
         scans: k, the current scan plus k − 1 past ones.
         seed, augment, device: as :class:`dsnet_core.train.loop.TrainConfig`.
+        schedule, min_lr_ratio, batch_size, amp, grad_clip: the step loop's
+            (:class:`~dsnet_core.train.skeleton.StepConfig`); a ``member`` batch's loss is the mean
+            of its samples' PointSegMLP losses.
         min_points: instances with fewer points in a scan are no detection target there.
         jitter: standard deviation (m) of the ground-truth centres PointSegMLP trains on.
         pairs_per_object: at most this many random RoI pairs per centre and step.
@@ -81,6 +86,13 @@ class MostTrainConfig:
     min_points: int = 5
     jitter: float = 0.3
     pairs_per_object: int = 256
+    schedule: str = "cosine"
+    batch_size: int = 1
+    amp: str = "off"
+    grad_clip: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_step_settings(self)
 
     def stages(self) -> list[str]:
         if self.stage == "all":
@@ -88,12 +100,6 @@ class MostTrainConfig:
         if self.stage not in MOST_STAGES:
             raise ConfigError(f"unknown MOST training stage '{self.stage}' (choose detect, member or all)")
         return [self.stage]
-
-    def epoch_lr(self, epoch: int, total: int) -> float:
-        if total <= 1:
-            return self.lr
-        floor = self.lr * self.min_lr_ratio
-        return floor + 0.5 * (self.lr - floor) * (1.0 + np.cos(np.pi * epoch / (total - 1)))
 
 
 class MostTrainer(TrainerSkeleton):
@@ -121,7 +127,8 @@ class MostTrainer(TrainerSkeleton):
         backbone_from: str | Path | None = None,
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), train_config, label_map
-        self.device = torch.device(train_config.device)
+        self.step = StepConfig.of(train_config)
+        self.dist, self.device = distributed.setup(train_config.device)
         self.reader, self.val_reader = reader, val_reader
         self.train_items = _items(reader, sequences)
         self.val_items = _items(val_reader, val_sequences)
@@ -129,7 +136,7 @@ class MostTrainer(TrainerSkeleton):
             raise ConfigError(f"no labelled frames in {reader.root} sequences {sequences}")
         self.train_targets = SequenceTargets(reader, sequences, label_map, train_config.min_points)
         self.val_targets = SequenceTargets(val_reader, val_sequences, label_map, train_config.min_points)
-        if prepare_out(self.out, resume):
+        if prepare_out(self.out, resume, self.dist):
             self.model, self.card = load_most_checkpoint(self.out, self.device, expect_label_map=label_map)
             log.info("resuming from %s (epochs done: %s)", self.out, self.card.epochs)
         else:
@@ -162,7 +169,7 @@ class MostTrainer(TrainerSkeleton):
                     **extra,
                 },
             )
-        self.card.training_data["train_config"] = asdict(train_config)
+        self.card.training_data["train_config"] = {**asdict(train_config), "world_size": self.dist.world_size}
         self.card.code_version = code_version()
         self.weights = class_weights(np.asarray(self.card.training_data["class_points"])).to(self.device)
 
@@ -175,9 +182,6 @@ class MostTrainer(TrainerSkeleton):
 
     def epochs_of(self, stage: str) -> int:
         return self.cfg.epochs.get(stage, 0)
-
-    def epoch_lr(self, stage: str, epoch: int, total: int) -> float:
-        return float(self.cfg.epoch_lr(epoch, total))
 
     def write_checkpoint(self, staging: Path, stage: str, extra: dict) -> None:
         save_most_checkpoint(staging, self.model, self.card)
@@ -199,51 +203,48 @@ class MostTrainer(TrainerSkeleton):
             p.requires_grad_(name.startswith("pointseg.") == (stage == "member"))
         return torch.optim.Adam([p for p in self.model.parameters() if p.requires_grad], lr=self.cfg.lr)
 
-    def train_epoch(
-        self, stage: str, epoch: int, opt: torch.optim.Optimizer, on_step=None, net=None
-    ) -> float:
-        rng = np.random.default_rng([self.cfg.seed, MOST_STAGES.index(stage), epoch])
-        torch.manual_seed(int(rng.integers(2**31)))
-        order = rng.permutation(len(self.train_items))
+    def wrap(self, stage: str | None = None) -> torch.nn.Module:
+        """``member`` trains PointSegMLP alone: it is the module wrapped (and called) there."""
+        module = self.model.pointseg if stage == "member" else self.model
+        return self.dist.wrap(module, self.device)
+
+    def train_modes(self, stage: str) -> None:
         self.model.train()
         if stage == "member":  # frozen first stage: batch-norm statistics stay fixed
             for name, mod in self.model.named_children():
                 if name != "pointseg":
                     mod.eval()
-        losses = []
-        for step, i in enumerate(order.tolist()):
-            sample = self._sample(self.train_targets, self.train_items[i])
-            if self.cfg.augment:
-                sample = Augmentation.draw(rng).apply(sample)
-            if stage == "detect":
-                loss, _ = detect_loss(self.model, [sample], self.weights, self.device)
-            else:
-                loss = self._member_loss(sample, rng)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            losses.append(float(loss.detach()))
-            if on_step is not None:
-                on_step(stage, epoch + 1, step + 1, len(order), losses[-1])
-            if (step + 1) % 25 == 0:
-                log.info(
-                    "%s epoch %d step %d/%d: mean loss %.4f",
-                    stage,
-                    epoch + 1,
-                    step + 1,
-                    len(order),
-                    np.mean(losses[-25:]),
-                )
-        return float(np.mean(losses))
 
-    def _member_loss(self, sample: MostSample, rng: np.random.Generator) -> torch.Tensor:
+    def epoch_plan(self, stage: str, epoch: int) -> EpochPlan:
+        key = [self.cfg.seed, MOST_STAGES.index(stage), epoch]
+        return self.shuffled_plan(key, len(self.train_items), self._train_sample)
+
+    def _train_sample(self, i: int, rng: np.random.Generator) -> MostSample:
+        sample = self._sample(self.train_targets, self.train_items[i])
+        return Augmentation.draw(rng).apply(sample) if self.cfg.augment else sample
+
+    def loss(
+        self, stage: str, batch: list[MostSample], net: torch.nn.Module, rng: np.random.Generator
+    ) -> torch.Tensor:
+        """``detect``: eq. 1 + 2 + 4 of the batch through ``net`` (the model); ``member``: eq. 3 of
+        each sample through ``net`` (PointSegMLP), averaged."""
+        if stage == "detect":
+            return detect_loss(net, batch, self.weights, self.device)[0]
+        losses = [self._member_loss(sample, rng, net) for sample in batch]
+        return losses[0] if len(losses) == 1 else torch.stack(losses).mean()
+
+    def _member_loss(
+        self, sample: MostSample, rng: np.random.Generator, pointseg: torch.nn.Module
+    ) -> torch.Tensor:
         with torch.no_grad():
             out = self.model([torch.from_numpy(sample.points).to(self.device)])
         det = jittered_detections(sample.targets, rng, self.cfg.jitter)
         feats, target = member_pairs(self.model, out, sample, det, rng, self.cfg.pairs_per_object)
         if feats.shape[0] < 2:  # batch norm needs two rows
+            if self.dist.active:  # every rank's DDP step needs a gradient of every parameter
+                return pointseg(feats.new_zeros((2, feats.shape[1]))).sum() * 0.0
             return self.model.pointseg.mlp[0].weight.sum() * 0.0
-        return membership_loss(self.model.pointseg(feats), target)
+        return membership_loss(pointseg(feats), target)
 
     def _sample(self, targets: SequenceTargets, item: tuple[str, int]) -> MostSample:
         seq, pos = item

@@ -52,7 +52,7 @@ class Augmentation:
 def detect_loss(
     net: MostNet, samples: list[MostSample], weights: torch.Tensor, device: torch.device
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Stage 1 loss of a batch and its terms."""
+    """Stage 1 loss of a batch and its terms; ``net`` may be the model's DDP wrapper."""
     clouds = [torch.from_numpy(s.points).to(device) for s in samples]
     out = net(clouds)
     sem = np.concatenate([np.r_[s.sem, np.zeros(len(s.points) - s.n_current, np.int64)] for s in samples])
@@ -63,7 +63,7 @@ def detect_loss(
             out.voxel_logits, voxel_labels(out.point_to_voxel, sem_t, n_vox, n_cls), weights
         )
     }
-    cfg = net.config
+    cfg = getattr(net, "module", net).config  # a DDP wrapper's model
     heat, regs = [], {k: [] for k in REGRESS_WEIGHTS}
     for b, s in enumerate(samples):
         tg = bev_targets(s.targets, cfg.bev, cfg.things)

@@ -30,14 +30,16 @@ from tasks.methods.base import (
     refined,
     resolve_temporal,
 )
+from tasks.methods.dsnet import DSNET
+from tasks.methods.training import StepOptions
 
 if TYPE_CHECKING:
     from tasks.pipeline import Pipeline
 
 
-class DplsTrainOptions(TrainOptions):
+class DplsTrainOptions(StepOptions):
     """The prior-conditioned instance network on corrupted ground-truth priors, from a trained
-    DS-Net (--init-from, default the bundled single-scan model)."""
+    DS-Net (--init-from, default the bundled single-scan model); data-parallel under torchrun."""
 
     epochs: str = Field("6", description="Passes over the training volumes.")
     scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume (the prior is aggregated too).")
@@ -73,6 +75,7 @@ class Dpls(Method):
         "prior_label_map": ("prior.label_map",),
     }
     TrainOptions = DplsTrainOptions
+    data_parallel = True
 
     def pipeline(
         self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
@@ -125,25 +128,25 @@ class Dpls(Method):
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
         import torch
 
-        from dsnet_core.checkpoints import bundled_checkpoint
+        from dsnet_core.train import distributed
         from dsnet_core.train.dpls import DplsTrainConfig, DplsTrainer
-        from tasks.methods import get_method
+        from dsnet_core.train.skeleton import config_from
         from tasks.methods.training import open_training_data
 
         assert isinstance(options, DplsTrainOptions)
         epochs = options.epoch_counts(("dpls",))["dpls"]
         torch.set_num_threads(options.threads)
         data = open_training_data(options)
-        cfg = DplsTrainConfig(
-            epochs=epochs, lr=options.lr, scans=options.scans, seed=options.seed, augment=options.augment,
-            device=options.device,
-        )  # fmt: skip
-        start = options.start_from(get_method(), 1) or bundled_checkpoint(1)
-        trainer = DplsTrainer(
-            options.out, data.reader, data.sequences, data.val_reader, data.val_sequences, data.label_map,
-            cfg, start, options.resume,
-        )  # fmt: skip
-        card = trainer.run(on_step=on_step)
+        cfg = config_from(DplsTrainConfig, options.model_dump(), epochs=epochs)
+        start = options.start_from(DSNET, 1) or DSNET.bundled_checkpoint(1)  # it starts from a DS-Net
+        try:
+            trainer = DplsTrainer(
+                options.out, data.reader, data.sequences, data.val_reader, data.val_sequences,
+                data.label_map, cfg, start, options.resume,
+            )  # fmt: skip
+            card = trainer.run(on_step=on_step if trainer.dist.is_main else None)
+        finally:
+            distributed.teardown()
         last = card.metrics[-1] if card.metrics else {}
         return (
             f"wrote checkpoint {options.out.resolve()} (epochs {card.epochs}, val offset L1 clean "

@@ -110,7 +110,7 @@ class Dsnet(Method):
 
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
         assert isinstance(options, DsnetTrainOptions)
-        return train_dsnet(options, on_step)
+        return train_dsnet(self, options, on_step)
 
 
 DSNET = Dsnet()

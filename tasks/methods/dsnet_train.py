@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field
 
-from tasks.methods.base import StepCallback, TrainOptions
-from tasks.methods.training import open_training_data
+from tasks.methods.base import StepCallback
+from tasks.methods.training import StepOptions, open_training_data
+
+if TYPE_CHECKING:
+    from tasks.methods.base import Method
 
 log = logging.getLogger(__name__)
 TRAIN_STAGES = ("semantic", "offset", "joint", "shift")
@@ -21,7 +24,7 @@ PLAIN_STAGES = ("semantic", "offset", "shift")
 """What ``--epochs N`` trains: every stage but ``joint`` (4D-DS-Net's fine-tune, named to run)."""
 
 
-class DsnetTrainOptions(TrainOptions):
+class DsnetTrainOptions(StepOptions):
     """Semantic stage, instance head, shifting MLPs (and 4D-DS-Net's joint fine-tune on k-scan
     volumes); data-parallel under torchrun."""
 
@@ -36,12 +39,9 @@ class DsnetTrainOptions(TrainOptions):
     scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume (1 = single scans).")
     preset: str = Field("tiny", description="Model preset: tiny | small | paper | reference | cylinder3d.")
     grid: str | None = Field(None, description="Cylinder cells 'ρ,φ,z' (default: the preset's).")
-    schedule: Literal["cosine", "constant"] = Field("cosine", description="Learning rate per stage.")
-    batch_size: int = Field(1, ge=1, description="Volumes per step (per process under torchrun).")
     freeze_backbone: bool = Field(False, description="The semantic stage trains only the semantic head.")
     holdout: float = Field(0.0, ge=0.0, lt=1.0, description="Fraction of frames held back to validate.")
     patience: int = Field(0, ge=0, description="Early stop after N epochs without a better score.")
-    amp: Literal["off", "bf16", "fp16"] = Field("off", description="Mixed precision: off, bf16 or fp16.")
     equivariant: int = Field(1, ge=1, description="Eq-4D: a C_n yaw-equivariant network (n divides φ cells).")
     pooling: Literal["mean", "max"] = Field("mean", description="Equivariant: invariant pooling.")
     stream: int = Field(0, ge=0, description="Train on N never-seen generated sequences per epoch.")
@@ -107,8 +107,9 @@ def _stream_card(log: str | None):
     return estimate_sensor(open_log(log), log).card
 
 
-def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None) -> str:
-    """Train (or resume) a DS-Net checkpoint; returns the summary line.
+def train_dsnet(method: Method, options: DsnetTrainOptions, on_step: StepCallback | None = None) -> str:
+    """Train (or resume) a checkpoint of ``method`` (DS-Net; ``--init-from bundled`` is its bundled
+    model for k = ``scans``); returns the summary line.
 
     Raises:
         ConfigError: bad data or settings (e.g. neither or both of DATA and ``--stream``).
@@ -118,6 +119,7 @@ def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None)
     from dsnet_core.errors import ConfigError
     from dsnet_core.train import distributed
     from dsnet_core.train.loop import TrainConfig, Trainer
+    from dsnet_core.train.skeleton import config_from
 
     if (options.data is None) == (options.stream == 0):
         raise ConfigError("give a training log (DATA) or --stream N, not both or neither")
@@ -138,24 +140,8 @@ def train_dsnet(options: DsnetTrainOptions, on_step: StepCallback | None = None)
         data = open_training_data(options, stream)
         if data.validates_on_training and not options.holdout:
             log.warning("no validation set given: validating on the training sequences")
-        cfg = TrainConfig(
-            stage=options.stage,
-            epochs=epochs,
-            lr=options.lr,
-            schedule=options.schedule,
-            scans=options.scans,
-            batch_size=options.batch_size,
-            seed=options.seed,
-            augment=options.augment,
-            device=options.device,
-            freeze_backbone=options.freeze_backbone,
-            holdout=options.holdout,
-            patience=options.patience,
-            amp=options.amp,
-        )
-        from tasks.methods import get_method
-
-        init_from = options.start_from(get_method(), options.scans)
+        cfg = config_from(TrainConfig, options.model_dump(), epochs=epochs)
+        init_from = options.start_from(method, options.scans)
         lift = (options.equivariant, options.pooling) if init_from and options.equivariant != 1 else None
         trainer = Trainer(
             options.out, config, data.reader, data.sequences, data.val_reader, data.val_sequences,

@@ -25,6 +25,8 @@ from tasks.methods.base import (
     option,
     refined,
 )
+from tasks.methods.dsnet import DSNET
+from tasks.methods.training import StepOptions
 
 if TYPE_CHECKING:
     from tasks.pipeline import Pipeline
@@ -32,9 +34,10 @@ if TYPE_CHECKING:
 TRAIN_STAGES = ("detect", "member")
 
 
-class MostTrainOptions(TrainOptions):
+class MostTrainOptions(StepOptions):
     """Detection, segmentation and velocity (stage detect), then PointSegMLP (stage member);
-    --init-from a DS-Net checkpoint starts the shared backbone."""
+    --init-from a DS-Net checkpoint starts the shared backbone ('bundled': DS-Net's single-scan
+    model); data-parallel under torchrun."""
 
     epochs: str = Field("10", description="Epochs per stage: N for both, or 'detect=6,member=2'.")
     stage: Literal["detect", "member", "all"] = Field("all", description="detect | member | all.")
@@ -61,6 +64,7 @@ class Most(Method):
         "device": ("most.device",),
     }
     TrainOptions = MostTrainOptions
+    data_parallel = True
 
     def pipeline(
         self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
@@ -130,8 +134,9 @@ class Most(Method):
 
         from dsnet_core.model.presets import get_preset
         from dsnet_core.most.config import MostConfig
+        from dsnet_core.train import distributed
         from dsnet_core.train.most import MostTrainConfig, MostTrainer
-        from tasks.methods import get_method
+        from dsnet_core.train.skeleton import config_from
         from tasks.methods.dsnet_train import parse_grid
         from tasks.methods.training import open_training_data
 
@@ -147,21 +152,16 @@ class Most(Method):
             backbone = replace(backbone, grid=replace(backbone.grid, size=parse_grid(options.grid)))
         torch.set_num_threads(options.threads)
         data = open_training_data(options)
-        cfg = MostTrainConfig(
-            stage=options.stage,
-            epochs=epochs,
-            lr=options.lr,
-            scans=options.scans,
-            seed=options.seed,
-            augment=options.augment,
-            device=options.device,
-        )
-        start = options.start_from(get_method(), 1)
-        trainer = MostTrainer(
-            options.out, MostConfig(backbone=backbone), data.reader, data.sequences, data.val_reader,
-            data.val_sequences, data.label_map, cfg, options.resume, backbone_from=start,
-        )  # fmt: skip
-        card = trainer.run(on_step=on_step)
+        cfg = config_from(MostTrainConfig, options.model_dump(), epochs=epochs)
+        start = options.start_from(DSNET, 1)  # the shared backbone is a DS-Net's
+        try:
+            trainer = MostTrainer(
+                options.out, MostConfig(backbone=backbone), data.reader, data.sequences, data.val_reader,
+                data.val_sequences, data.label_map, cfg, options.resume, backbone_from=start,
+            )  # fmt: skip
+            card = trainer.run(on_step=on_step if trainer.dist.is_main else None)
+        finally:
+            distributed.teardown()
         last = card.metrics[-1] if card.metrics else {}
         miou, recall = last.get("val_miou", float("nan")), last.get("val_det_recall", float("nan"))
         return (

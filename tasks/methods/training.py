@@ -1,16 +1,30 @@
-"""What every method's trainer does alike before it trains: open the training and validation
-logs and take the label map from the training data's reader (never a hard-coded dataset)."""
+"""What every method's trainer does alike before it trains: the options of the trainer skeleton's
+step loop (:class:`StepOptions`), and the training and validation logs with the label map of the
+training data's reader (never a hard-coded dataset)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
+
+from pydantic import Field
 
 from tasks.methods.base import TrainOptions
 
 if TYPE_CHECKING:
     from dsnet_core.io.reader import LogReader
     from dsnet_core.labels import LabelMap
+
+
+class StepOptions(TrainOptions):
+    """The options of the skeleton's step loop (:class:`~dsnet_core.train.skeleton.StepConfig`),
+    the same for every trainer on it; each becomes the config field of its name
+    (:func:`~dsnet_core.train.skeleton.config_from`)."""
+
+    schedule: Literal["cosine", "constant"] = Field("cosine", description="Learning rate per stage.")
+    batch_size: int = Field(1, ge=1, description="Volumes per step (per process under torchrun).")
+    amp: Literal["off", "bf16", "fp16"] = Field("off", description="Mixed precision: off, bf16 or fp16.")
+    grad_clip: float = Field(0.0, ge=0.0, description="Clip each step's gradient norm to this (0: off).")
 
 
 @dataclass

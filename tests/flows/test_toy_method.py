@@ -18,7 +18,7 @@ from pydantic import Field
 from typer.testing import CliRunner
 
 from dsnet_core.model.checkpoint import ModelCard, save_tensors
-from dsnet_core.train.skeleton import TrainerSkeleton, prepare_out
+from dsnet_core.train.skeleton import EpochPlan, TrainerSkeleton, prepare_out
 from tasks.ingest import IngestStage
 from tasks.methods import METHODS, LabelSettings, Method, TrainOptions, get_method, register
 from tasks.pipeline import Pipeline
@@ -52,14 +52,11 @@ class ToyTrainer(TrainerSkeleton):
     def optimizer(self, stage: str) -> torch.optim.Optimizer:
         return torch.optim.SGD(self.model.parameters(), lr=self.options.lr)
 
-    def train_epoch(self, stage, epoch, opt, on_step, net) -> float:
-        loss = (net(torch.ones(1, 1)).squeeze() - self.target) ** 2
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        if on_step is not None:
-            on_step(stage, epoch + 1, 1, 1, float(loss.detach()))
-        return float(loss.detach())
+    def epoch_plan(self, stage: str, epoch: int) -> EpochPlan:  # one sample: one step an epoch
+        return self.shuffled_plan([self.options.seed, epoch], 1, lambda i, rng: i)
+
+    def loss(self, stage, batch, net, rng) -> torch.Tensor:
+        return (net(torch.ones(1, 1)).squeeze() - self.target) ** 2
 
     def validate(self, stage: str) -> dict[str, Any]:
         return {"val_mean_range": float(self.model.weight.detach())}

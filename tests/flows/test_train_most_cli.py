@@ -50,11 +50,33 @@ def test_train_most_refuses_dsnet_flags(tmp_path):
         app,
         ["train", "most", "x", "--out", str(tmp_path / "o"), "--amp", "bf16", "--patience", "2"],
     )
-    assert res.exit_code == 2 and "No such option: --amp" in res.output  # only MOST's own options exist
+    # --amp is the trainer skeleton's (every method has it); --patience is DS-Net's own
+    assert res.exit_code == 2 and "No such option: --patience" in res.output
 
 
-def test_train_most_refuses_torchrun(tmp_path, monkeypatch):
-    monkeypatch.setenv("WORLD_SIZE", "2")  # as torchrun sets it: MOST's trainer is single-process
+def test_the_step_options_are_every_trainers(tmp_path):
+    """The skeleton's step options come to ``dsnet train most`` and ``dpls`` as to ``dsnet``,
+    generated from the same fields, and become the trainer config's fields of the same names."""
+    from dsnet_core.train.most import MostTrainConfig
+    from dsnet_core.train.skeleton import StepConfig, config_from
+    from tasks.methods import METHODS
+
+    for method in METHODS.values():
+        res = CliRunner().invoke(app, ["train", method.name, "--help"], terminal_width=200)
+        assert res.exit_code == 0
+        for flag in ("--amp", "--batch-size", "--grad-clip", "--schedule"):
+            assert flag in res.output, (method.name, flag)
+    options = METHODS["most"].TrainOptions(out=tmp_path, amp="bf16", batch_size=2, grad_clip=1.5)
+    cfg = config_from(MostTrainConfig, options.model_dump(), epochs={"detect": 1, "member": 0})
+    assert StepConfig.of(cfg) == StepConfig(batch_size=2, amp="bf16", grad_clip=1.5)
+    assert (cfg.scans, cfg.seed, cfg.epochs) == (3, 0, {"detect": 1, "member": 0})
+
+
+def test_a_single_process_method_refuses_torchrun(tmp_path, monkeypatch):
+    from tasks.methods import METHODS
+
+    monkeypatch.setattr(type(METHODS["most"]), "data_parallel", False)  # a method without DDP
+    monkeypatch.setenv("WORLD_SIZE", "2")  # as torchrun sets it
     res = CliRunner().invoke(app, ["train", "most", "x", "--out", str(tmp_path / "o")])
     assert res.exit_code == 2 and "most trains in one process" in res.output
     assert not (tmp_path / "o").exists()

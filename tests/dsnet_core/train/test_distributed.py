@@ -162,13 +162,13 @@ def test_two_ranks_equal_the_reference_computed_by_hand(ddp_run, tmp_path):
     reader = SemanticKittiReader(log)
     opt = t.optimizer("semantic")
     for group in opt.param_groups:
-        group["lr"] = t.cfg.epoch_lr(0, 1)
+        group["lr"] = t.epoch_lr("semantic", 0, 1)
     rng = np.random.default_rng([t.cfg.seed, STAGES.index("semantic"), 0])
     rng.integers(2**31)  # the epoch's torch seed (nothing random in the forward pass)
     order = rng.permutation(len(t.train_vols))
     shards = [shard(order, 2, r) for r in (0, 1)]
     assert sorted(shards[0].tolist() + shards[1].tolist()) == sorted([*order.tolist(), order[0]])
-    t._set_modes("semantic")
+    t.train_modes("semantic")
     params = [p for p in t.model.parameters() if p.requires_grad]
     for step in range(len(shards[0])):
         grads = {}
@@ -176,7 +176,7 @@ def test_two_ranks_equal_the_reference_computed_by_hand(ddp_run, tmp_path):
             kept = {k: b.clone() for k, b in t.model.named_buffers()}
             opt.zero_grad(set_to_none=True)
             sample = load_sample(reader, t.train_vols[shards[r][step]], LM)
-            t._loss("semantic", [sample]).backward()
+            t.loss("semantic", [sample], t.model, rng).backward()
             grads[r] = [p.grad.clone() for p in params]
             if r == 1:
                 for k, b in t.model.named_buffers():

@@ -40,3 +40,27 @@ def test_train_an_epoch_then_resume(synth_log, tmp_path):
     assert again.card.epochs == {"dpls": 1}
     assert again.run().epochs == {"dpls": 2}
     assert np.array_equal(np.asarray(again.card.training_data["prior_noise"]["confusion"]), confusion)
+
+
+def test_bf16_batches_of_two(synth_log, tmp_path):
+    """The skeleton's step loop gives D-PLS mixed precision and batches (instances kept apart per
+    sample): half the steps, a finite loss close to full precision's, float32 weights."""
+    torch.set_num_threads(1)
+    parent = make_checkpoint(tmp_path / "parent")
+    reader = SemanticKittiReader(synth_log)
+
+    def run(out, **kw):
+        cfg = DplsTrainConfig(epochs=1, lr=1e-3, seed=3, **kw)
+        steps: list[int] = []
+        t = DplsTrainer(out, reader, ["00"], reader, ["01"], LM, cfg, init_from=parent)
+        card = t.run(on_step=lambda stage, epoch, step, total, loss: steps.append(total))
+        return card, set(steps)
+
+    plain, plain_steps = run(tmp_path / "fp32")
+    mixed, mixed_steps = run(tmp_path / "bf16", amp="bf16", batch_size=2)
+    assert (plain_steps, mixed_steps) == ({6}, {3})  # six volumes of sequence 00
+    assert mixed.training_data["train_config"]["amp"] == "bf16"
+    a, b = plain.metrics[-1]["train_loss"], mixed.metrics[-1]["train_loss"]
+    assert np.isfinite(b) and abs(a - b) < 0.5 * a, (a, b)
+    model, _ = load_checkpoint(tmp_path / "bf16")
+    assert all(p.dtype == torch.float32 for p in model.parameters())

@@ -13,6 +13,7 @@ from dsnet_core.model.checkpoint import load_checkpoint
 from dsnet_core.model.cylinder import CylinderGrid
 from dsnet_core.model.presets import PRESETS
 from dsnet_core.train.loop import TrainConfig, Trainer
+from dsnet_core.train.skeleton import StepConfig, cosine_lr
 from tests.helpers.tiny_log import write_tiny_log
 
 LM = load_label_map("semantic-kitti")
@@ -111,14 +112,15 @@ def test_tiny_model_overfits_two_frames(log, tmp_path):
 
 
 def test_cosine_schedule_runs_from_lr_to_the_floor():
-    cfg = TrainConfig(lr=2e-3, min_lr_ratio=0.05)
-    rates = [cfg.epoch_lr(e, 10) for e in range(10)]
+    step = StepConfig.of(TrainConfig(lr=2e-3, min_lr_ratio=0.05))
+    rates = [step.epoch_lr(e, 10) for e in range(10)]
+    assert rates == [cosine_lr(2e-3, e, 10, 0.05) for e in range(10)]
     assert rates[0] == pytest.approx(2e-3)
     assert rates[-1] == pytest.approx(1e-4)
     assert all(a > b for a, b in itertools.pairwise(rates))
     assert rates[5] == pytest.approx(1e-4 + 0.5 * 1.9e-3 * (1 + math.cos(math.pi * 5 / 9)))
-    assert TrainConfig(lr=1e-3, schedule="constant").epoch_lr(7, 10) == 1e-3
-    assert TrainConfig(lr=1e-3).epoch_lr(0, 1) == 1e-3
+    assert StepConfig.of(TrainConfig(lr=1e-3, schedule="constant")).epoch_lr(7, 10) == 1e-3
+    assert StepConfig.of(TrainConfig(lr=1e-3)).epoch_lr(0, 1) == 1e-3
 
 
 def test_unknown_schedule_is_a_config_error():

@@ -103,3 +103,25 @@ def test_backbone_from_a_dsnet_checkpoint_and_errors(log, tmp_path):
         trainer(log, tmp_path / "m", stage="detect", epochs={"detect": 1})
     with pytest.raises(ConfigError, match="unknown MOST training stage 'shift'"):
         trainer(log, tmp_path / "x", stage="shift").run()
+
+
+def test_bf16_batches_of_two_train_both_stages_in_float32_weights(log, tmp_path):
+    """The skeleton's step loop gives MOST mixed precision and batches: the same epochs in half
+    the steps, losses close to full precision, float32 weights, the card records the choice."""
+    kw = dict(epochs={"detect": 1, "member": 1})
+    plain = trainer(log, tmp_path / "fp32", **kw).run()
+    steps: list[tuple[str, int]] = []
+    mixed = trainer(log, tmp_path / "bf16", amp="bf16", batch_size=2, **kw).run(
+        on_step=lambda stage, epoch, step, total, loss: steps.append((stage, total))
+    )
+    assert set(steps) == {("detect", 2), ("member", 2)}  # 3 labelled frames in batches of two
+    assert (
+        mixed.training_data["train_config"] | {"amp": "bf16", "batch_size": 2, "world_size": 1}
+        == (mixed.training_data["train_config"])
+    )
+    for a, b in zip(plain.metrics, mixed.metrics, strict=True):
+        assert np.isfinite(b["train_loss"]) and b["train_loss"] < 3 * a["train_loss"], (a, b)
+    model, _ = load_most_checkpoint(tmp_path / "bf16")
+    assert all(p.dtype == torch.float32 for p in model.parameters())
+    with pytest.raises(ConfigError, match="--amp"):
+        MostTrainConfig(amp="fp8")

@@ -7,6 +7,12 @@ calib and times as they are); :func:`infer_only` runs the row's pipeline on it o
 on it), in a store of its own; :func:`changed_share` compares those classes, item by item (a scan,
 or a k-scan volume at k > 1), with the ``infer`` stage of the row's store on the unmoved log.
 
+Where the flips come from: the share of flipped points whose unmoved prediction had a top-two
+probability margin below ``LOW_MARGIN``, and, for single scans (k = 1, where an item's points are
+the scan's, in order), the share of points whose cylinder cell the jitter changed and the share of
+the flips whose point stayed in its cell (a voxel whose prediction changed although its points did
+not leave it: the network's input moved, not the quantisation).
+
 Run as a worker by ``bench_transfer.py``: ``python bench/_stability.py --data LOG --store DIR
 --sequences 31,32 --row dsnet-k1-track [--checkpoint CKPT]`` runs ingest → align → infer.
 """
@@ -24,6 +30,7 @@ import numpy as np
 BENCH = Path(__file__).resolve().parent
 JITTER_MM = 5.0
 JITTER_SEED = 5
+LOW_MARGIN = 0.1  # top-1 minus top-2 probability below which a prediction counts as unsure
 
 
 def jitter_points(scan: np.ndarray, mm: float, rng: np.random.Generator) -> np.ndarray:
@@ -83,18 +90,59 @@ def flip_counts(ref: np.ndarray, new: np.ndarray, n_classes: int) -> tuple[np.nd
     return points, changed
 
 
-def changed_share(ref_store: Path, new_store: Path, sequences: list[str], names: list[str]) -> dict:
+def top_margin(probs: np.ndarray) -> np.ndarray:
+    """float32 ``(N,)`` top-1 minus top-2 probability of ``(N, C)`` probabilities (uint8: ``q / 255``)."""
+    p = np.asarray(probs, np.float32)
+    if np.asarray(probs).dtype == np.uint8:
+        p = p / 255.0
+    top2 = np.partition(p, p.shape[1] - 2, axis=1)[:, -2:]
+    return (top2[:, 1] - top2[:, 0]).astype(np.float32)
+
+
+def cell_moved(ref_scan: np.ndarray, new_scan: np.ndarray, grid) -> np.ndarray:
+    """bool ``(N,)``: the point's cylinder cell (:func:`~dsnet_core.model.cylinder.cylinder_features`,
+    the model's own) differs between two ``(N, 4)`` scans of the same points."""
+    import torch
+
+    from dsnet_core.model.cylinder import cylinder_features
+
+    a = cylinder_features(torch.from_numpy(np.ascontiguousarray(ref_scan, np.float32)), grid)[0]
+    b = cylinder_features(torch.from_numpy(np.ascontiguousarray(new_scan, np.float32)), grid)[0]
+    return (a != b).any(dim=1).numpy()
+
+
+def changed_share(
+    ref_store: Path,
+    new_store: Path,
+    sequences: list[str],
+    names: list[str],
+    logs: tuple[Path, Path] | None = None,
+    grid=None,
+) -> dict:
     """The share of points whose ``infer`` class differs between two stores of the same log's points.
 
+    Args:
+        logs: the unmoved and the moved log, with ``grid`` the model's cylinder grid: also measure
+            which points changed cell (single-scan rows only: item ``i`` is frame ``i``).
+
     Returns:
-        ``{"points": N, "changed": n, "share": n / N, "by_class": {name: share}}``, ``by_class`` by
-        the class predicted on the unmoved log (classes it predicts at all).
+        ``{"points": N, "changed": n, "share": n / N, "by_class": {name: share}, "low_margin": share
+        of points with margin < LOW_MARGIN, "flips_low_margin": share of the changed points with it}``,
+        ``by_class`` by the class predicted on the unmoved log (classes it predicts at all); with
+        ``logs``, also ``"cell_moved"`` (share of points whose cell changed) and
+        ``"flips_in_kept_cells"`` (share of the changed points that stayed in their cell).
     """
     from storage.run import RunStore
     from tasks.run_config import read_run
 
     points = np.zeros(len(names), np.int64)
     changed = np.zeros(len(names), np.int64)
+    low = low_flips = moved = kept_flips = 0
+    readers = None
+    if logs is not None:
+        from dsnet_core.io.semantickitti import SemanticKittiReader
+
+        readers = [SemanticKittiReader(logs[0]), SemanticKittiReader(logs[1])]
     stores = [RunStore(ref_store), RunStore(new_store)]
     arrays = []
     for rs in stores:
@@ -106,17 +154,37 @@ def changed_share(ref_store: Path, new_store: Path, sequences: list[str], names:
             raise ValueError(
                 f"{new_store}: sequence {seq} has {b.n_items} infer items, {ref_store} {a.n_items}"
             )
+        frames = [r.frames(seq) for r in readers] if readers else None
         for i in range(a.n_items):
-            p, c = flip_counts(a.read_item(i, ["sem"])["sem"], b.read_item(i, ["sem"])["sem"], len(names))
+            ref = a.read_item(i, ["sem", "probs"])
+            new = b.read_item(i, ["sem"])["sem"]
+            p, c = flip_counts(ref["sem"], new, len(names))
             points += p
             changed += c
-    total = int(points.sum())
-    return {
+            flip = ref["sem"] != new
+            unsure = top_margin(ref["probs"]) < LOW_MARGIN
+            low += int(unsure.sum())
+            low_flips += int((flip & unsure).sum())
+            if frames is not None:
+                scans = [readers[j].scan(frames[j][i]) for j in range(2)]
+                if len(scans[0]) != len(flip):
+                    raise ValueError(f"{ref_store}: infer item {i} of {seq} is not frame {i} (k > 1?)")
+                m = cell_moved(scans[0], scans[1], grid)
+                moved += int(m.sum())
+                kept_flips += int((flip & ~m).sum())
+    total, n_changed = int(points.sum()), int(changed.sum())
+    out = {
         "points": total,
-        "changed": int(changed.sum()),
-        "share": float(changed.sum() / total) if total else float("nan"),
+        "changed": n_changed,
+        "share": float(n_changed / total) if total else float("nan"),
         "by_class": {names[k]: float(changed[k] / points[k]) for k in range(len(names)) if points[k]},
+        "low_margin": float(low / total) if total else float("nan"),
+        "flips_low_margin": float(low_flips / n_changed) if n_changed else float("nan"),
     }
+    if logs is not None:
+        out["cell_moved"] = float(moved / total) if total else float("nan")
+        out["flips_in_kept_cells"] = float(kept_flips / n_changed) if n_changed else float("nan")
+    return out
 
 
 def infer_only(data: Path, store: Path, sequences: list[str], row: str, checkpoint: str | None) -> None:

@@ -62,6 +62,7 @@ from pathlib import Path
 
 import numpy as np
 from _present import present_scores
+from _stability import JITTER_MM, LOW_MARGIN
 
 BENCH = Path(__file__).resolve().parent
 REPO = BENCH.parent
@@ -245,7 +246,14 @@ def stability(
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"{out}: the jittered infer failed:\n{res.stderr[-3000:]}")
-    return changed_share(ref_store, out, seqs, list(load_label_map("semantic-kitti").class_names))
+    names = list(load_label_map("semantic-kitti").class_names)
+    if ROWS[key][1] != 1:  # a k-scan volume's points are not one scan's: no cell analysis
+        return changed_share(ref_store, out, seqs, names)
+    from dsnet_core.checkpoints import bundled_checkpoint
+    from dsnet_core.model.card import read_card
+
+    grid = read_card(ckpt or bundled_checkpoint(1)).config.grid
+    return changed_share(ref_store, out, seqs, names, logs=(data, jittered), grid=grid)
 
 
 def confusions(conf: np.ndarray, names: list[str], top: int = TOP) -> dict[str, dict]:
@@ -317,8 +325,11 @@ def markdown(results: dict) -> str:
     any_scores = next(r["scores"] for c in results.values() for rs in c.values() for r in rs.values())
     names = [n for n in any_scores["class_names"][1:]]
     lines = [
-        "## Scores (official mode; pres. = mean over the classes with ground-truth points in the cell;",
-        "flip = share of points whose predicted class changes under ±5 mm jitter)",
+        "## Scores (official mode)",
+        "",
+        "pres.: the mean over the classes with ground-truth points in the cell (the official means",
+        f"count an absent class as 0); flip %: points whose predicted class changes under ±{JITTER_MM:g} mm",
+        "jitter.",
         "",
         *_score_table(results, before=False),
     ]
@@ -329,6 +340,38 @@ def markdown(results: dict) -> str:
             for m, cells in results.items()
         }
         lines += _score_table(sub, before=True)
+    if any("stability" in r for c in results.values() for rs in c.values() for r in rs.values()):
+        lines += [
+            "",
+            f"## Stability under ±{JITTER_MM:g} mm jitter",
+            "",
+            "The network's classes (infer stage). flip: share of points whose class changes; unsure:",
+            f"share of the points whose top-two probability margin is below {LOW_MARGIN:g}, and of the",
+            "flips; cell moved: share of points the jitter moves to another cylinder cell; kept: share",
+            "of the flips whose point stayed in its cell (k = 1 only).",
+            "",
+        ]
+        head = ["model", "cell", "row", "flip %", "unsure % (points)", "unsure % (flips)"]
+        head += ["cell moved %", "kept % (flips)"]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for model, cells in results.items():
+            for cell, rows in cells.items():
+                for key, r in rows.items():
+                    st = r.get("stability")
+                    if st is None:
+                        continue
+                    vals = [
+                        st.get(f)
+                        for f in ("low_margin", "flips_low_margin", "cell_moved", "flips_in_kept_cells")
+                    ]
+                    row = [
+                        model,
+                        cell,
+                        key,
+                        _flip(r),
+                        *("–" if v is None else f"{100 * v:.1f}" for v in vals),
+                    ]
+                    lines.append("| " + " | ".join(row) + " |")
     lines += ["", "## Mean over the held-out synthetic cells, the other generator and PandaSet", ""]
     head = ["model", "row", "synth mIoU", "synth PQ", "other mIoU", "other PQ", "other LSTQ"]
     head += ["PandaSet mIoU", "mIoU pres.", "PQ", "PQ pres.", "LSTQ", "flip %"]
@@ -423,7 +466,7 @@ def main() -> None:
         print(f"{PANDASET_SOURCE} is absent: the PandaSet cells are left out", flush=True)
         cell_names = [c for c in cell_names if c not in REAL]
     sys.path.insert(0, str(REPO))
-    from _stability import JITTER_MM, JITTER_SEED, jitter_log
+    from _stability import JITTER_SEED, jitter_log
 
     args.out.mkdir(parents=True, exist_ok=True)
     results: dict = {}

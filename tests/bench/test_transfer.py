@@ -142,3 +142,16 @@ def test_markdown_shows_present_means_flips_and_before_refine():
     assert "| m | k1 | 0.500 | 0.400 | – | – | – | 0.500 | 0.750 | 0.400 | 0.600 | 0.600 | 1.23 |" in md
     assert "| m | pandaset | k1 | 1.00 | 0.50 | – |" in md  # IoU per class, fence absent
     assert "| m | pandaset | k1 | 0.90 | 0.30 | – |" in md  # PQ per class
+
+
+def test_top_margin_and_cell_moves():
+    probs = np.array([[200, 50, 5], [100, 100, 55], [0, 0, 255]], np.uint8)
+    assert _stability.top_margin(probs) == pytest.approx([150 / 255, 0.0, 1.0])
+    from dsnet_core.model.grid import CylinderGrid
+
+    grid = CylinderGrid()  # ρ cells of 47 m / 480 ≈ 9.8 cm from 3 m
+    a = np.array([[10.0, 0.0, 0.0, 0.5], [10.06, 0.0, 0.0, 0.5]], np.float32)  # ρ cells 71 and 72
+    b = a + np.array([0.004, 0.0, 0.0, 0.0], np.float32)
+    assert _stability.cell_moved(a, b, grid).tolist() == [False, False]
+    b[1, 0] = 10.04  # across the boundary at 3 + 72 · 47 / 480 = 10.05 m
+    assert _stability.cell_moved(a, b, grid).tolist() == [False, True]

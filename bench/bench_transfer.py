@@ -143,7 +143,7 @@ def make_cell(root: Path, name: str) -> tuple[Path, list[str] | None]:
         seed, first, setups = CELLS[name]
         want = {"seed": seed, "first": first, "setups": setups, "frames": FRAMES}
     if stamp.exists() and json.loads(stamp.read_text()) == json.loads(json.dumps(want)):
-        return out
+        return out, None
     if name == OTHER:
         sys.path.insert(0, str(VALIDATION))
         import other_generator

@@ -155,3 +155,14 @@ def test_top_margin_and_cell_moves():
     assert _stability.cell_moved(a, b, grid).tolist() == [False, False]
     b[1, 0] = 10.04  # across the boundary at 3 + 72 · 47 / 480 = 10.05 m
     assert _stability.cell_moved(a, b, grid).tolist() == [False, True]
+
+
+def test_make_cell_returns_the_log_and_its_sequences_when_reused(tmp_path):
+    import json
+
+    out = tmp_path / "seeds"
+    out.mkdir()
+    seed, first, setups = bench_transfer.CELLS["seeds"]
+    want = {"seed": seed, "first": first, "setups": setups, "frames": bench_transfer.FRAMES}
+    (out / "bench_cell.json").write_text(json.dumps(want))  # a current cell: nothing generated
+    assert bench_transfer.make_cell(tmp_path, "seeds") == (out, None)

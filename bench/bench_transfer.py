@@ -408,8 +408,10 @@ def markdown(results: dict) -> str:
     for key in row_keys:
         lines += [
             "",
-            f"## Top confusions ({key}): share of each ground-truth class's points labelled right, then",
-            "its most frequent wrong classes",
+            f"## Top confusions ({key})",
+            "",
+            "The share of each ground-truth class's points labelled right (bold), then its most frequent",
+            "wrong classes (% of the class's points).",
             "",
         ]
         for model, cells in results.items():

@@ -20,29 +20,34 @@ when not there; validation only: sequence 30, the one that may be trained on, is
 here, and nothing selects on these cells), with the coordinates as stored (rounded to 1 cm); and
 ``pandaset-dq``, the same frames dequantised (every coordinate moved by a seeded uniform ±5 mm,
 ``DQ_SEED``), which rounding to 1 cm turns back into ``pandaset``. Both are left out, with a
-message, when that folder is absent. PandaSet lacks 9 of the 19 classes: beside the official
-means (absent classes count 0) every score row has the means over the classes present
-(``bench/_present.py``: a class is present when the cell's ground truth has points of it).
+message, when that folder is absent. PandaSet 31 + 32 lacks 8 of the 19 classes (its README says 9:
+it counts terrain, 62 points, as absent): beside the official means (absent classes count 0) every
+score row has the means over the classes present (``bench/_present.py``: a class is present when
+the cell's ground truth has points of it).
 
 Stability (``bench/_stability.py``): for every (model, cell, row) the cell's log is copied with every
 coordinate moved by uniform ±5 mm (seed ``JITTER_SEED``), the row's pipeline runs on it as far as
 ``infer``, and the column ``flip`` is the share of points whose predicted class (the network's,
-before shifting, tracking and refine) differs from the ``infer`` stage of the row's own store;
+before shifting, tracking and refine) differs from the ``infer`` stage of the row's own store
+(at k = 2 over the points of each 2-scan volume); a stability table says how many of the flipped
+predictions were unsure and, at k = 1, how many flipped points stayed in their cylinder cell;
 ``--no-stability`` leaves it out.
 
 Every (model, cell) labels the cell through the real stages with ``bench/bench_methods.py`` rows
 (k = 1 + track with the 3D checkpoint, k = 2 + stitch with the 4D one, optionally ``--tta 4``), in
 its own process, without the ``refine`` stage unless ``--refine`` (the model's own quality). This
-script collects official-mode mIoU, PQ, PQ^Th, PQ^St, LSTQ, every class's IoU and the semantic
-confusion matrix into four tables: the scores, the per-class IoU, the means over the synthetic
-cells and over the other generator, and the top confusions (for each ground-truth class, the share
-of its points labelled right and its most frequent wrong classes).
+script collects official-mode mIoU, PQ, PQ^Th, PQ^St, LSTQ, every class's IoU and PQ and the
+semantic confusion matrix into tables: the scores (with present-class means and flips), the scores
+before refine (with ``--refine``), stability, the means over the synthetic cells, the other
+generator and PandaSet, the per-class IoU and PQ, and per row the top confusions (for each
+ground-truth class, the share of its points labelled right and its most frequent wrong classes).
 
 Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_transfer.py --out DIR
 --model old=OLD_3D:OLD_4D --model new=NEW_3D:NEW_4D [--rows k1,k2] [--cells seeds,validation,pandaset]
 [--refine]`` (a model's 4D checkpoint serves the k = 2 rows; without ``:4D`` the 3D one does;
-``--model bundled`` takes the bundled default models). With ``--refine`` (``dsnet label``'s
-default) the labels are scored after refine and, from the same stores, before it. Writes
+``--model bundled`` takes the models ``dsnet label`` takes without ``--checkpoint``). With
+``--refine`` (``dsnet label``'s default) the labels are scored after refine and, from the same
+stores, before it. Writes
 ``DIR/transfer.json`` and ``DIR/transfer.md``; the run stores under ``DIR/<model>/<cell>/`` are
 kept and reused while current.
 

@@ -220,6 +220,8 @@ class Scores:
             "pq_things_corrected": c.panoptic.pq_things,
             "id_switches": self.switches.switches,
             "class_iou": {name: score.iou for name, score in p.per_class.items()},
+            "class_pq": {name: score.pq for name, score in p.per_class.items()},
+            "class_things": [name for name, score in p.per_class.items() if score.thing],
             # points per (predicted, ground-truth) train class, official mode; names by train id
             "confusion": self.evals["official"].panoptic.conf.tolist(),
             "class_names": self.names,

@@ -13,6 +13,7 @@ from typing import Any
 import typer
 
 from flows.commands.common import errors_exit
+from flows.commands.model_folder import writing_folder
 
 
 def _parameter(name: str, field) -> inspect.Parameter:
@@ -41,7 +42,8 @@ def adapt_command():
     def adapt(**values: Any) -> None:
         with errors_exit():
             options = AdaptOptions(**values)
-            line = _run(options)
+            with writing_folder(options.out, "dsnet adapt"):
+                line = _run(options)
         typer.echo(line)
         typer.echo(f"metrics table: {options.out.resolve() / 'metrics.csv'}")
         typer.echo(f"relabel: dsnet label LOG --run RUN --refine --checkpoint {options.out.resolve()}")

@@ -13,7 +13,7 @@ from typing import Any
 import typer
 
 from flows.commands.common import errors_exit
-from flows.commands.model_folder import writing_folder
+from flows.commands.model_folder import interrupted_exit, writing_folder
 
 
 def _parameter(name: str, field) -> inspect.Parameter:
@@ -40,7 +40,7 @@ def adapt_command():
     from tasks.adapt import AdaptOptions
 
     def adapt(**values: Any) -> None:
-        with errors_exit():
+        with errors_exit(), interrupted_exit():
             options = AdaptOptions(**values)
             with writing_folder(options.out, "dsnet adapt"):
                 line = _run(options)

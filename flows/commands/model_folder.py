@@ -60,6 +60,33 @@ def writing_folder(out: Path, command: str, *, stale_after_s: float = 60.0) -> I
             out.rmdir()  # a command that failed before writing leaves no empty folder behind
 
 
+@contextlib.contextmanager
+def interrupted_exit() -> Iterator[None]:
+    """Ctrl-C (or SIGTERM) during ``train`` or ``adapt``: one line and exit code 130. The folder's
+    lock is released on the way out (the ``with`` blocks unwind), every committed epoch and labelled
+    round is kept, and ``--resume`` continues exactly where the run stopped."""
+    import signal
+    import threading
+
+    import typer
+
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler) if main else None
+    try:
+        yield
+    except KeyboardInterrupt:
+        typer.secho(
+            "error: interrupted; the finished epochs are kept: run the same command with --resume to "
+            "continue",
+            fg=typer.colors.RED,
+            err=True,
+        )
+        raise typer.Exit(code=130) from None
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, previous)
+
+
 def busy_line(out: Path, holder: dict) -> str:
     """``OUT: being written by `dsnet train dsnet` (pid 123 on host h, since 21:30:02 UTC); …``."""
     command = str(holder.get("run_id", "another command")).rsplit(" ", 1)[0]

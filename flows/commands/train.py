@@ -16,7 +16,7 @@ from typing import Any
 import typer
 
 from flows.commands.common import errors_exit
-from flows.commands.model_folder import writing_folder
+from flows.commands.model_folder import interrupted_exit, writing_folder
 
 train = typer.Typer(
     name="train",
@@ -59,7 +59,7 @@ def method_command(method):
     def command(**values: Any) -> None:
         from tasks.methods.resume import check_train_resume
 
-        with errors_exit():
+        with errors_exit(), interrupted_exit():
             options = method.TrainOptions(**values)
             if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not method.data_parallel:
                 raise ValueError(

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -263,3 +264,73 @@ def test_a_checkpoint_with_nan_weights_is_refused_when_loaded(ck):
         CheckpointError, match=r"model\.safetensors: weights hold NaN or infinite values \(1 tensor"
     ):
         load_checkpoint(ck)
+
+
+# -- Ctrl-C during adapt ---------------------------------------------------------------------------
+def _adapt_ctrl_c(tmp_path, phase: str):
+    """``dsnet adapt`` (random parent, two corrected frames, the synthetic stream with one worker),
+    SIGINT to its process group (what Ctrl-C sends) once ``phase`` is reached."""
+    import time
+
+    from tests.flows.conftest import REPO, cli
+    from tests.flows.test_adapt_cli import FAST_SHIFT, corrections, unlabelled
+
+    labelled = write_tiny_log(tmp_path / "labelled", frames=3, n=1500)
+    fixes = corrections(labelled, tmp_path / "fixes", ["000000", "000002"])
+    target = unlabelled(write_tiny_log(tmp_path / "target", frames=3, n=1500))
+    parent = make_checkpoint(tmp_path / "parent")
+    out = tmp_path / "ad"
+    args = ["adapt", target, "--out", out, "--from", parent, "--labels", fixes, "--clusterer", FAST_SHIFT]
+    args = [
+        str(a) for a in (*args, "--steps", "6", "--rounds", "1", "--epochs", "2", "--stream-workers", "1")
+    ]
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(
+        cli(*args), cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,
+    )  # fmt: skip
+
+    def reached() -> bool:
+        if phase == "teacher":
+            return (out / "store").is_dir()
+        children = subprocess.run(
+            ["ps", "-o", "cmd", "--ppid", str(proc.pid)], capture_output=True, text=True
+        )
+        return "spawn_main" in children.stdout  # the stream's render worker runs
+
+    deadline = time.monotonic() + 600
+    while not reached() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()[1][-2000:]
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    return proc, err, args, env
+
+
+def _assert_one_line(proc, err: str) -> None:
+    lines = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip() and "━" not in ln]
+    assert proc.returncode == 130, err[-3000:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert [ln for ln in lines if "error" in ln.lower()] == [
+        "error: interrupted; the finished epochs are kept: run the same command with --resume to continue"
+    ]
+
+
+def test_ctrl_c_in_adapts_teacher_phase_says_one_line(tmp_path):
+    """Finding: Ctrl-C in the teacher phase exited silently."""
+    proc, err, _, _ = _adapt_ctrl_c(tmp_path, "teacher")
+    _assert_one_line(proc, err)
+    assert not (tmp_path / "ad" / LOCK).exists()
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_adapts_stream_worker_runs_says_one_line_and_resumes(tmp_path):
+    """Finding: a 20-line ``SpawnProcess … KeyboardInterrupt`` traceback from the stream's worker."""
+    from tests.flows.conftest import REPO, cli
+
+    proc, err, args, env = _adapt_ctrl_c(tmp_path, "stream")
+    _assert_one_line(proc, err)
+    again = subprocess.run(
+        cli(*args, "--resume"), cwd=REPO, env=env, capture_output=True, text=True, timeout=600
+    )
+    assert again.returncode == 0 and "wrote adapted checkpoint" in again.stdout, again.stderr[-2000:]

@@ -58,3 +58,40 @@ def test_no_readable_scan_names_the_first_scans_problem(tmp_path):
     reader = FolderReader(folder)
     with pytest.raises(ScanFormatError, match=r"scan0\.npy"):
         reader.intensity_convention("folder")
+
+
+def _label(*args) -> tuple[int, str]:
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+
+    res = CliRunner().invoke(app, ["label", *map(str, args)])
+    return res.exit_code, res.output
+
+
+def test_label_refuses_a_log_without_poses_at_two_scans_before_any_server(tmp_path):
+    """Finding: `dsnet label` on a log without poses at --scans 2 started a Prefect server (8–10 s)
+    and printed the error four times. Now one line, before any server or stage, naming the folder."""
+    log = make_log(tmp_path / "log", ("00",), n_frames=3, n_ground=300, n_car=40)
+    (log / "sequences/00/poses.txt").unlink()
+    code, text = _label(log, "--run", tmp_path / "run", "--scans", "2")
+    assert code == 2 and text.count("\n") == 1, text
+    assert text.startswith(
+        f"error: {log.resolve() / 'sequences/00/velodyne'}: sequence 00: volumes of --scans 2"
+    )
+    assert "--estimate-poses, or label with --scans 1" in text
+    assert "Prefect" not in text and not (tmp_path / "run").exists()
+
+
+def test_label_refuses_a_bad_scan_before_any_server_and_skip_quarantines_it(tmp_path):
+    """Finding: a log whose content is bad (here an inf coordinate, as `describe` finds) started a
+    server first. With --on-error skip the check leaves the frame to ingest's quarantine."""
+    folder = _folder_log(tmp_path)
+    code, text = _label(folder, "--run", tmp_path / "run", "--scans", "1")
+    assert code == 2 and text.count("\n") == 1, text
+    assert f"{folder / 'scan0.npy'}" in text and "Prefect" not in text
+    from flows.preflight import check_content
+    from flows.request import LabelRequest
+
+    request = LabelRequest(data=str(folder), root=str(tmp_path / "run"), options={"on_error": "skip"})
+    check_content(request)  # passes: the bad frame is quarantined by ingest

@@ -46,7 +46,10 @@ def adapt_command():
                 line = _run(options)
         typer.echo(line)
         typer.echo(f"metrics table: {options.out.resolve() / 'metrics.csv'}")
-        typer.echo(f"relabel: dsnet label LOG --run RUN --refine --checkpoint {options.out.resolve()}")
+        typer.echo(  # the k the student trained at (label's own default is k = 2)
+            f"relabel: dsnet label LOG --run RUN --refine --scans {options.scans} "
+            f"--checkpoint {options.out.resolve()}"
+        )
 
     fields = AdaptOptions.model_fields
     adapt.__signature__ = inspect.Signature([_parameter(n, f) for n, f in fields.items()])

@@ -334,3 +334,6 @@ def test_ctrl_c_while_adapts_stream_worker_runs_says_one_line_and_resumes(tmp_pa
         cli(*args, "--resume"), cwd=REPO, env=env, capture_output=True, text=True, timeout=600
     )
     assert again.returncode == 0 and "wrote adapted checkpoint" in again.stdout, again.stderr[-2000:]
+    assert (
+        "relabel: dsnet label LOG --run RUN --refine --scans 1 --checkpoint" in again.stdout
+    )  # k of the card

@@ -95,3 +95,28 @@ def test_label_refuses_a_bad_scan_before_any_server_and_skip_quarantines_it(tmp_
 
     request = LabelRequest(data=str(folder), root=str(tmp_path / "run"), options={"on_error": "skip"})
     check_content(request)  # passes: the bad frame is quarantined by ingest
+
+
+def test_argmax_over_all_classes_reproduces_the_reference_rule(tmp_path):
+    """Also: the product's argmax is over classes 1..19; the reference's ``calc_sem_label`` over all
+    20. ``argmax="all"`` (infer setting ``argmax: all``) gives the reference's labels; the default is
+    unchanged and is left out of the infer record (existing runs keep their fingerprints)."""
+    import torch
+
+    from dsnet_core.model.inference import Predictor
+    from tasks.infer import InferConfig
+    from tests.helpers.tiny_log import tiny_frame
+    from tests.model_helpers import make_checkpoint
+
+    ck = make_checkpoint(tmp_path / "ck", seed=2)
+    points, _ = tiny_frame(0, n=3000)
+    ours = Predictor.from_checkpoint(ck).predict(points)
+    ref = Predictor.from_checkpoint(ck, argmax="all").predict(points)
+    assert (ours.sem > 0).all() and np.array_equal(ours.probs, ref.probs)
+    differ = ours.sem != ref.sem
+    assert differ.any() and (ref.sem[differ] == 0).all()  # only where "unlabelled" wins
+    assert np.array_equal(ours.sem[ref.sem > 0], ref.sem[ref.sem > 0])  # elsewhere the same class
+    assert "argmax" not in InferConfig().model_dump(mode="json")
+    assert InferConfig(argmax="all").model_dump(mode="json")["argmax"] == "all"
+    with pytest.raises(ValueError, match="argmax must be one of"):
+        Predictor(torch.nn.Module(), argmax="none")

@@ -138,14 +138,15 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     params = SelectionParams(
         keep=options.keep, min_confidence=options.min_confidence, max_confidence=options.max_confidence
     )
-    train, heldout, exclude = corrected_frames(options, logs, cfg)
-    source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
     settings = LabelSettings(
         scans=options.scans,
         device=options.device,
         clusterer=options.clusterer,
         estimate_poses=options.estimate_poses,
     )
+    _check_teacher_stages(method, settings, parent)
+    train, heldout, exclude = corrected_frames(options, logs, cfg)
+    source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
     labeller = TeacherLabeller(options.out, logs, method, settings, params, label_map, exclude, on_label)
     record = {
         "method": method.name,
@@ -189,6 +190,35 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
         f"wrote adapted checkpoint {options.out.resolve()} (rounds {len(done.epochs)}, last round's "
         f"pseudo-label coverage {last.get('coverage', float('nan')):.3f}, source probe mIoU {src:.4f})"
     )
+
+
+def _check_teacher_stages(method, settings: LabelSettings, parent: Path) -> None:
+    """The teacher's stage configs validated before any stage runs (``--clusterer bogus`` was
+    refused only after ingest, align and infer had run).
+
+    Raises:
+        ValueError: naming the option (``--clusterer 'bogus': not a kind it takes (expected: …)``).
+    """
+    from pydantic import ValidationError
+
+    from tasks.methods.base import flag
+
+    stages = method.stage_settings(settings.model_copy(update={"checkpoint": str(parent), "refine": True}))
+    pipeline = method.pipeline(method.options(settings), stages)
+    for name, config in stages.items():
+        try:
+            pipeline[name].Config.model_validate(config)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            head = str(err["loc"][0]) if err.get("loc") else name
+            ctx = err.get("ctx") or {}
+            what = (
+                f"{ctx.get('tag')!r}: not a kind it takes (expected: {ctx.get('expected_tags')})"
+                if err.get("type") == "union_tag_invalid"
+                else f"{err.get('msg', 'invalid')}"
+            )
+            option = flag(head) if head in LabelSettings.model_fields else f"stage {name} setting {head}"
+            raise ValueError(f"{option} {what}") from None
 
 
 def _check_resumed_logs(options: AdaptOptions, logs: list, method: str) -> None:

@@ -120,3 +120,51 @@ def test_argmax_over_all_classes_reproduces_the_reference_rule(tmp_path):
     assert InferConfig(argmax="all").model_dump(mode="json")["argmax"] == "all"
     with pytest.raises(ValueError, match="argmax must be one of"):
         Predictor(torch.nn.Module(), argmax="none")
+
+
+def test_adapt_refuses_a_bad_clusterer_before_the_teacher_runs(tmp_path):
+    """Finding: `adapt --clusterer bogus` ran the teacher's ingest, align and infer (9 s) before a raw
+    pydantic message."""
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+    from tests.helpers.tiny_log import write_tiny_log
+    from tests.model_helpers import make_checkpoint
+
+    log = write_tiny_log(tmp_path / "log", frames=2, n=500)
+    parent = make_checkpoint(tmp_path / "parent")
+    out = tmp_path / "ad"
+    res = CliRunner().invoke(
+        app, ["adapt", str(log), "--out", str(out), "--from", str(parent), "--clusterer", "bogus"]
+    )
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]  # (an empty progress display's blank line)
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert lines[0].startswith("error: --clusterer 'bogus': not a kind it takes (expected: 'dynamic_shift'")
+    assert not out.exists()  # no teacher store, no folder
+
+
+def test_from_stage_refine_with_no_refine_names_the_option():
+    """Finding: `--from-stage refine --no-refine` said "unknown stage refine"."""
+    from tasks.methods import get_method
+
+    pipeline = get_method("dsnet").pipeline({"refine": False}, {})
+    with pytest.raises(
+        ValueError, match=r"stage 'refine' is off in this run \(--no-refine\): its stages are \["
+    ):
+        pipeline.check_stage("refine")
+    with pytest.raises(ValueError, match="unknown stage 'bogus'"):
+        pipeline.check_stage("bogus")
+
+
+def test_train_most_help_lists_every_preset_it_takes():
+    """Finding: `train most --preset reference` ran (silently, for minutes) though --help listed only
+    tiny, small and paper."""
+    from typer.testing import CliRunner
+
+    from dsnet_core.model.presets import PRESETS
+    from flows.cli import app
+    from tasks.methods.most import MostTrainOptions
+
+    described = MostTrainOptions.model_fields["preset"].description
+    assert all(name in described for name in PRESETS), described
+    assert "reference" in CliRunner().invoke(app, ["train", "most", "--help"]).output

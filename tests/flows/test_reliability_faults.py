@@ -48,6 +48,12 @@ def test_a_bad_first_scan_quarantines_only_its_frame(tmp_path):
     assert t["status"] == ["quarantined", "ok", "ok", "ok"] and m.counts["quarantined"] == 1
     assert "scan0.npy" in t["reason"][0] and t["reason"][1:] == [None, None, None]
     assert all(n > 0 for n in t["n_points"][1:])
+    # the run's closing summary says what was skipped (finding: it did not)
+    from flows.commands.label_report import quarantined_lines
+
+    lines = quarantined_lines(store, ["folder"])
+    assert lines[0] == "  quarantined 1 of 4 frames (--on-error skip; they have no labels):"
+    assert lines[1].startswith(f"    folder/scan0: {folder / 'scan0.npy'}") and len(lines) == 2
 
 
 def test_no_readable_scan_names_the_first_scans_problem(tmp_path):

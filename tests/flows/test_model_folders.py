@@ -337,3 +337,26 @@ def test_ctrl_c_while_adapts_stream_worker_runs_says_one_line_and_resumes(tmp_pa
     assert (
         "relabel: dsnet label LOG --run RUN --refine --scans 1 --checkpoint" in again.stdout
     )  # k of the card
+
+
+# -- damage to a training folder ---------------------------------------------------------------------
+@pytest.mark.parametrize("damage", ["json", "truncated", "bit-flip"])
+def test_a_damaged_optimiser_state_is_refused_naming_the_file(damage, logs, ck):
+    """Issue 40 ("Also"): damage to ``train_state`` must give a clear refusal, never a silent mix (a
+    bad JSON was "Expecting value" naming no file, a truncated tensor file a traceback, a flipped bit
+    went unnoticed)."""
+    state = ck / ("train_state.json" if damage == "json" else "train_state.safetensors")
+    data = bytearray(state.read_bytes())
+    if damage == "json":
+        data = data[:10]
+    elif damage == "truncated":
+        data = data[: len(data) // 2]
+    else:
+        data[-3] ^= 0x01
+    state.write_bytes(bytes(data))
+    code, text = invoke("train", "dsnet", logs[0], "--out", ck, "--epochs", "semantic=2", *TRAIN, "--resume")
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1, text
+    assert lines[0].startswith(f"error: {state}: optimiser state")
+    assert "delete train_state.json and train_state.safetensors to resume with a fresh optimiser" in text
+    assert read_card(ck).epochs == {"semantic": 1}

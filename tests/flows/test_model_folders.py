@@ -360,3 +360,20 @@ def test_a_damaged_optimiser_state_is_refused_naming_the_file(damage, logs, ck):
     assert lines[0].startswith(f"error: {state}: optimiser state")
     assert "delete train_state.json and train_state.safetensors to resume with a fresh optimiser" in text
     assert read_card(ck).epochs == {"semantic": 1}
+
+
+def test_label_takes_its_default_scans_from_the_checkpoints_card(trained, reference_files, tmp_path):
+    """Finding: adapt trains at k = 1 and `label` defaulted to k = 2, so the suggested relabel fed
+    2-scan volumes to a single-scan model. Without --scans, label now takes the card's k."""
+    from tasks.methods import LabelSettings, get_method
+
+    dsnet = get_method("dsnet")
+    assert dsnet.scans(LabelSettings(checkpoint=str(trained))) == 1  # trained (or adapted) at k = 1
+    assert dsnet.scans(LabelSettings(checkpoint=str(trained), scans=3)) == 3  # --scans wins
+    assert (
+        dsnet.scans(LabelSettings(checkpoint=str(make_checkpoint(tmp_path / "r")))) == 2
+    )  # card says nothing
+    assert dsnet.scans(LabelSettings()) == 2
+    out = tmp_path / "imp"
+    assert invoke("import-checkpoint", reference_files[0], "--out", out, "--kind", "dsnet")[0] == 0
+    assert dsnet.scans(LabelSettings(checkpoint=str(out))) == 1  # a 3D DS-Net import

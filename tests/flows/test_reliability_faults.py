@@ -174,3 +174,28 @@ def test_train_most_help_lists_every_preset_it_takes():
     described = MostTrainOptions.model_fields["preset"].description
     assert all(name in described for name in PRESETS), described
     assert "reference" in CliRunner().invoke(app, ["train", "most", "--help"]).output
+
+
+def test_a_bad_frame_found_by_ingest_is_printed_once(cli_env, tmp_path):
+    """Finding: a content error met in a stage was printed four times (three Prefect ERROR lines,
+    then `error:`). A bad middle frame (the preflight reads first and last scans) is now one line."""
+    import subprocess
+
+    from tests.flows.conftest import REPO, cli
+
+    folder = _folder_log(tmp_path, n_frames=3)
+    scan = np.load(folder / "scan0.npy")
+    scan[5, 0] = 1.0  # the first scan reads again; the middle one is bad
+    np.save(folder / "scan0.npy", scan)
+    bad = np.load(folder / "scan1.npy")
+    bad[7, 2] = np.inf
+    np.save(folder / "scan1.npy", bad)
+    res = subprocess.run(
+        cli("label", str(folder), "--run", str(tmp_path / "run"), "--scans", "1"),
+        cwd=REPO, env=cli_env, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr[-3000:]
+    said = [ln for ln in res.stderr.splitlines() if "scan1.npy" in ln]
+    assert said == [f"error: {folder / 'scan1.npy'}: 1 points have NaN or inf values (first: point 7)"], (
+        res.stderr
+    )

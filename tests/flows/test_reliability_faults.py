@@ -199,3 +199,44 @@ def test_a_bad_frame_found_by_ingest_is_printed_once(cli_env, tmp_path):
     assert said == [f"error: {folder / 'scan1.npy'}: 1 points have NaN or inf values (first: point 7)"], (
         res.stderr
     )
+
+
+def test_serve_prints_one_line_per_tick(prefect_api_url, cli_env, tmp_path):
+    """Finding: `serve` printed about ten Prefect INFO lines per tick (51 in 6 ticks). Now one line
+    per tick: what it labelled (and, as before, a warning line for what it left out)."""
+    import subprocess
+    import time
+
+    from prefect.deployments import run_deployment
+
+    from tests.flows.conftest import REPO, cli
+    from tests.flows.test_serve import _wait_deployment
+
+    watched = make_log(tmp_path / "watched", ("00", "01"), n_frames=3, n_ground=300)
+    env = {k: v for k, v in cli_env.items() if k != "PREFECT_LOGGING_LEVEL"}
+    env["PREFECT_RUNNER_POLL_FREQUENCY"] = "1"
+    args = ("serve", "--watch", str(watched), "--runs", str(tmp_path / "runs"), "--cron", "0 3 * * *")
+    args += ("--name", "quiet", "--scans", "1", "--until", "align", "--check-every", "1")
+    log = tmp_path / "serve.log"
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(cli(*args), cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        _wait_deployment("auto-label/auto-label-quiet", proc)
+        for _ in range(2):
+            assert run_deployment("auto-label/auto-label-quiet", timeout=300).state.is_completed()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and log.read_text().count("tick '") < 2:
+            time.sleep(0.5)
+        text = log.read_text()  # while serving (Prefect's runner warns of its own shutdown)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    ticks = [ln for ln in lines if ln.startswith("tick '")]
+    assert len(ticks) == 2, "\n".join(lines[-40:])
+    assert sorted(t.split(": ", 1)[1] for t in ticks) == [
+        "labelled 2 sequence(s): 00, 01",
+        "labelled nothing: nothing new or stale",
+    ]
+    assert not [ln for ln in lines if "| INFO" in ln], "\n".join(lines[-40:])
+    assert lines[0].startswith("serving auto-label of") and len(lines) == 3, "\n".join(lines)

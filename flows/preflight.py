@@ -6,7 +6,8 @@ that a bad log is one line in about a second, not a Prefect server's start and t
 from three task reports:
 
 - volumes of k ≥ 2 scans from a log without poses (and without ``--estimate-poses``);
-- each sequence's first and last scan and their labels read as ingest reads them (a PCD whose
+- each sequence's first and last scan and their labels read as ingest reads them (the first
+  :data:`SAMPLED_SEQUENCES` sequences the run labels; a PCD whose
   header contradicts itself, a truncated file, inf coordinates, labels of the wrong length) — only
   with ``--on-error fail``: with ``skip`` a bad frame is quarantined, not refused. Other frames are
   read by ingest (a whole-log check would read every scan twice);
@@ -19,12 +20,17 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+SAMPLED_SEQUENCES = 8
+"""Sequences whose first and last scans are read (the first ones of the run: a log of hundreds of
+sequences is not read twice before its run starts)."""
 
-def check_content(request: Any) -> None:
+
+def check_content(request: Any, sequences: list[str] | None = None) -> None:
     """Refuse a request whose log content or model would fail the run, naming the file.
 
     Args:
         request: a :class:`~flows.request.LabelRequest` (after its :meth:`check`).
+        sequences: the sequences the run will label (default: the request's, else the log's).
 
     Raises:
         DataFormatError: a sampled scan or label file that does not read, or poses missing for k ≥ 2.
@@ -36,9 +42,9 @@ def check_content(request: Any) -> None:
     scans = int(stages.get("align", {}).get("scans", 1))
     estimate = bool(stages.get("ingest", {}).get("estimate_poses", False))
     skip = getattr(request.options, "on_error", "fail") == "skip"
-    for seq in request.sequences or reader.sequences():
-        if seq not in reader.sequences():
-            continue  # the store's checks name an unknown sequence
+    known = set(reader.sequences())
+    todo = sequences if sequences is not None else (request.sequences or reader.sequences())
+    for n, seq in enumerate(s for s in todo if s in known):  # the store names an unknown one
         frames = reader.frames(seq)
         if scans > 1 and not estimate and frames and reader.poses(seq) is None:
             from dsnet_core.errors import PoseFormatError
@@ -48,7 +54,7 @@ def check_content(request: Any) -> None:
                 f"sequence {seq}: volumes of --scans {scans} need poses and the log has none (estimate "
                 "them with KISS-ICP: dsnet label --estimate-poses, or label with --scans 1)",
             )
-        if skip:
+        if skip or n >= SAMPLED_SEQUENCES:
             continue
         for ref in {id(f): f for f in (frames[:1] + frames[-1:])}.values():
             reader.scan(ref)

@@ -98,8 +98,8 @@ def execute(request, workers: int | None, dask_address: str | None, debug: bool)
     with errors_exit():
         check_services(dask_address)  # PREFECT_API_URL and --dask-address, in seconds, before the rest
         request.check()
-        check_content(request)  # what `describe` would find, before any server starts
         pending = pending_sequences(request)
+        check_content(request, pending)  # what `describe` would find, before any server starts
     t0 = time.monotonic()
     summary = run_label(request, workers, dask_address, debug=debug) if pending else []
     for line in run_report(request.root, summary, time.monotonic() - t0, request.storage_options):

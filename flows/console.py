@@ -2,7 +2,10 @@
 
 A failing flow makes Prefect log the whole traceback (~60 lines) before the command's own one-line
 ``error:``. :func:`hide_tracebacks` keeps Prefect's console lines but drops their tracebacks from
-the terminal (the Prefect API's logs keep them); ``--debug`` leaves them on.
+the terminal (the Prefect API's logs keep them), and drops the ERROR lines that only repeat a
+typed error (a bad scan, a damaged store: ``DsnetError``, ``StoreError``) which the command then
+prints once itself (``error: …``, or ``failed: sequence …`` in its summary); ``--debug`` leaves
+them all on.
 """
 
 from __future__ import annotations
@@ -27,6 +30,38 @@ class _WithoutTraceback(logging.Formatter):
             record.exc_info, record.exc_text, record.stack_info = saved
 
 
+def _typed_errors() -> tuple[type, ...]:
+    from dsnet_core.errors import DsnetError
+    from storage.errors import StoreError
+
+    return (DsnetError, StoreError)
+
+
+def _subclass_names(classes: tuple[type, ...]) -> set[str]:
+    names, todo = set(), list(classes)
+    while todo:
+        cls = todo.pop()
+        if cls.__name__ not in names:
+            names.add(cls.__name__)
+            todo += cls.__subclasses__()
+    return names
+
+
+class _TypedErrorEcho(logging.Filter):
+    """Drops an ERROR record that carries (or names) a typed project error: the command prints it."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.ERROR:
+            return True
+        typed = _typed_errors()
+        exc = record.exc_info[1] if record.exc_info else None
+        args = record.args if isinstance(record.args, tuple) else ()
+        if isinstance(exc, typed) or any(isinstance(a, typed) for a in args):
+            return False
+        text = record.getMessage()
+        return not any(f"exception {n}:" in text or f": {n}(" in text for n in _subclass_names(typed))
+
+
 def hide_tracebacks() -> None:
     """Wrap the formatter of every console handler Prefect configured (call after importing a flow:
     Prefect sets its logging up on import). Idempotent."""
@@ -41,3 +76,4 @@ def hide_tracebacks() -> None:
                 handler.formatter, _WithoutTraceback
             ):
                 handler.setFormatter(_WithoutTraceback(handler.formatter))
+                handler.addFilter(_TypedErrorEcho())

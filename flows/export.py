@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from storage.errors import StoreError
+from storage.errors import DamagedStoreError, StoreError
 from storage.run import RunStore
 from tasks.base import labels_contract
 from tasks.ingest import FRAMES
@@ -98,15 +98,19 @@ def final_labels(
         damage = store.check_stage(seq, contract, m)
         if damage:
             raise damage[0].error()
-        ids = store.read_table(seq, FRAMES)["frame_id"].to_pylist()
-        arrays = store.arrays(seq, contract)
-        done = arrays.done()
-        for index, frame_id in enumerate(ids):
-            if not done[index]:
-                arrays.check_not_done(index)  # quarantined, or its done flag was lost
-                yield seq, frame_id, None
-                continue
-            yield seq, frame_id, arrays.read_item(index, ["label"])["label"]
+        try:
+            ids = store.read_table(seq, FRAMES)["frame_id"].to_pylist()
+            arrays = store.arrays(seq, contract)
+            done = arrays.done()
+            for index, frame_id in enumerate(ids):
+                if not done[index]:
+                    arrays.check_not_done(index)  # quarantined, or its done flag was lost
+                    yield seq, frame_id, None
+                    continue
+                yield seq, frame_id, arrays.read_item(index, ["label"])["label"]
+        except DamagedStoreError as exc:  # noted, so that the rerun it asks for repairs it
+            store.note_found(exc.where, exc.problem)
+            raise
     if not found:
         raise StoreError(store.uri, f"no sequence has a finished {contract.stage!r} stage to export")
 

@@ -11,6 +11,7 @@ daemon thread and prints one line when
   up),
 - a run ends failed or crashed (its state message),
 - a run ends completed with a message (a tick that left sequences out: which, and why),
+- a tick ends completed (``tick 'NAME' of …: labelled 2 sequence(s): 00, 01 · PQ …``: its one line),
 
 and one line when scheduling recovers.
 """
@@ -109,9 +110,12 @@ class ScheduleWatch:
                     f": {message[-1] if message else 'no message'}",
                 )
             elif state.type.value == "COMPLETED" and (state.message or "").strip() not in STOCK:
-                self._once(
+                message = state.message.strip()
+                clean = message.startswith("labelled") and "not labelled" not in message
+                self._once(  # a clean tick's one line, or what it left out
                     f"note:{run.id}",
-                    f"warning: scheduled run {run.name!r} of {self.deployment}: {state.message.strip()}",
+                    f"{'tick' if clean else 'warning: scheduled run'} {run.name!r} of {self.deployment}: "
+                    f"{message}",
                 )
             elif state.type.value == "SCHEDULED" and run.expected_start_time is not None:
                 late = now - run.expected_start_time

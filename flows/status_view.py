@@ -84,9 +84,10 @@ class StatusView:
                     self.store, self.pipeline, seq, stage, self.run, full=self.verify
                 )
                 if state == "damaged":
-                    self.damaged += self.store.check_stage(
-                        seq, self.pipeline[stage].contract, m, full=self.verify
-                    )
+                    found = self.store.check_stage(seq, self.pipeline[stage].contract, m, full=self.verify)
+                    for d in found if self.verify else ():  # for the rerun that repairs it
+                        self.store.note_found(d.where, d.problem)
+                    self.damaged += found
                 row = [
                     seq,
                     stage,

@@ -107,13 +107,24 @@ def auto_label(request: LabelRequest | dict[str, Any], dataset: str | None = Non
     published = _publish(request, name, logger)
     _tick_artifact(request, name, labelled, reasons, published)
     result = {"labelled": labelled, "failed": list(reasons), "reasons": reasons, **published}
-    if not reasons:
-        return result
+    if not reasons:  # the tick's one line (dsnet serve prints it)
+        return Completed(message=tick_line(labelled, published), data=result)
     listed = "; ".join(f"{seq}: {why}" for seq, why in reasons.items())
     return Completed(
         message=f"labelled {len(labelled)} sequence(s); not labelled, tried again next tick: {listed}",
         data=result,
     )
+
+
+def tick_line(labelled: list[str], published: dict[str, Any]) -> str:
+    """``labelled 2 sequence(s): 00, 01 · PQ 41.5 · mIoU 37.3`` (or ``nothing new or stale``)."""
+    if not labelled:
+        return "labelled nothing: nothing new or stale"
+    line = f"labelled {len(labelled)} sequence(s): {', '.join(labelled)}"
+    h = published.get("headline") or {}
+    if published.get("scored") and h.get("pq") is not None:
+        line += f" · PQ {100 * h['pq']:.1f} · mIoU {100 * h['miou']:.1f}"
+    return line
 
 
 def _publish(request: LabelRequest, name: str, logger) -> dict[str, Any]:
@@ -165,6 +176,7 @@ def serve(
     """
     from flows.schedule_watch import ScheduleWatch
 
+    _quiet_prefect()
     dataset = name or request.dataset_name()
     request.order(request.pipeline())  # an unknown method or stage fails here, not at the first tick
     deployment = f"auto-label-{dataset_key(dataset)}"
@@ -173,6 +185,25 @@ def serve(
         _serve(request, cron, dataset, deployment)
     finally:
         watch.stop()
+
+
+def _quiet_prefect() -> None:
+    """One line per tick: Prefect's INFO lines (about ten a tick: submitting, opening the process,
+    task states) off in this process and in the ticks' processes, unless PREFECT_LOGGING_LEVEL says
+    otherwise (``PREFECT_LOGGING_LEVEL=INFO dsnet serve …`` shows them, as before)."""
+    import logging
+    import os
+
+    if os.environ.get("PREFECT_LOGGING_LEVEL"):
+        return
+    os.environ["PREFECT_LOGGING_LEVEL"] = "WARNING"  # the tick subprocesses the runner starts
+    for name, logger in list(logging.root.manager.loggerDict.items()):
+        if (
+            name.startswith("prefect")
+            and isinstance(logger, logging.Logger)
+            and logger.level < logging.WARNING
+        ):
+            logger.setLevel(logging.WARNING)
 
 
 class _ShutdownNoise:

@@ -27,6 +27,7 @@ table; ``full``: every chunk decoded and hashed) and returns what is damaged.
 
 from __future__ import annotations
 
+import logging
 import os
 import posixpath
 from dataclasses import dataclass
@@ -59,6 +60,10 @@ in another format is refused with one line that says to relabel: the product car
 of formats from before its release."""
 BLOCK_RECORD = ".b2"
 ROWS_SUFFIX = ".rows"
+DAMAGE_NOTE = "damage.json"
+"""A finished stage's note of damage a reader found (:meth:`RunStore.note_damage`)."""
+
+log = logging.getLogger(__name__)
 """A block fragment's table rows beside it: ``blocks/NNNNN.rows`` (not a ``.json``, so not taken
 for a fragment)."""
 CHANGED = "file does not match the checksum recorded when it was written"
@@ -162,6 +167,77 @@ class RunStore:
     def write_manifest(self, manifest: Manifest) -> None:
         rel = posixpath.join(self.stage_rel(manifest.sequence, manifest.stage), "manifest.json")
         self.root.write_bytes(rel, manifest.model_dump_json(indent=1).encode())
+        if manifest.status == "done":  # finished (or repaired): what a reader noted is recomputed
+            self._clear_noted(manifest.sequence, manifest.stage, list(manifest.tables))
+
+    # -- damage readers found (a flipped bit keeps a file's size: the cheap check cannot see it) --
+    def damage_note_rel(self, sequence: str) -> str:
+        return posixpath.join("sequences", check_plain_name(sequence), DAMAGE_NOTE)
+
+    def note_found(self, where: str, problem: str) -> None:
+        """Record that a reader (``export``, ``status --verify``) found the file at URL ``where``
+        damaged, e.g. a chunk or parquet partition whose bytes no longer match their digest at the
+        recorded size. The next run's check of the stage that owns it then decodes and compares
+        everything (``full``) and repairs what it finds; the note goes when that stage is done
+        again. Best effort: a store that cannot be written (a read-only export) keeps no note."""
+        sequence = self._sequence_of(where)
+        if sequence is None:
+            return
+        rel = self.damage_note_rel(sequence)
+        try:
+            noted = self._noted_entries(sequence) or []
+            if not any(n.get("where") == where for n in noted):
+                self.root.write_json(rel, [*noted, {"where": where, "problem": problem}])
+        except (OSError, StoreError, ValueError) as exc:
+            log.warning("could not note the damage of %s: %s", where, exc)
+
+    def _sequence_of(self, where: str) -> str | None:
+        """The sequence of a stage file's or table partition's URL (None: a run-level file)."""
+        for base in ("sequences", "tables"):
+            prefix = self.root.url(base).rstrip("/") + "/"
+            if where.startswith(prefix):
+                parts = where[len(prefix) :].split("/")
+                if base == "sequences" and len(parts) >= 3:
+                    return parts[0]
+                if base == "tables" and len(parts) >= 3 and parts[1].startswith("sequence="):
+                    return parts[1][len("sequence=") :]
+        return None
+
+    def _owned(self, sequence: str, stage: str, tables: list[str]) -> tuple[str, ...]:
+        """URL prefixes of a stage's files: its folder and its tables' partitions of ``sequence``."""
+        stage_url = self.root.url(self.stage_rel(sequence, stage)).rstrip("/") + "/"
+        parts = [self.root.url(posixpath.join("tables", t, f"sequence={sequence}")) + "/" for t in tables]
+        return (stage_url, *parts)
+
+    def _noted_entries(self, sequence: str) -> list[dict] | None:
+        """The note's entries ([] without a note; None for a damaged note, as if all were noted)."""
+        try:
+            noted = self.root.read_json(self.damage_note_rel(sequence))
+        except StoreError:
+            return None
+        if noted is None:
+            return []
+        return [n for n in noted if isinstance(n, dict)] if isinstance(noted, list) else None
+
+    def _noted(self, sequence: str, stage: str, tables: list[str]) -> bool:
+        noted = self._noted_entries(sequence)
+        if noted is None:
+            return True
+        owned = self._owned(sequence, stage, tables)
+        return any(str(n.get("where", "")).startswith(owned) for n in noted)
+
+    def _clear_noted(self, sequence: str, stage: str, tables: list[str]) -> None:
+        rel = self.damage_note_rel(sequence)
+        if not self.root.exists(rel):
+            return
+        owned = self._owned(sequence, stage, tables)
+        kept = [
+            n for n in self._noted_entries(sequence) or [] if not str(n.get("where", "")).startswith(owned)
+        ]
+        if kept:
+            self.root.write_json(rel, kept)
+        else:
+            self.root.remove(rel)
 
     def fragment_rel(self, sequence: str, stage: str, block: int) -> str:
         return posixpath.join(self.stage_rel(sequence, stage), "blocks", f"{block:05d}.json")
@@ -346,6 +422,8 @@ class RunStore:
         run checks before it skips a stage) also decodes every item's 1-byte ``done`` chunk: a
         flipped bit keeps its size.
         """
+        if not full and self._noted(sequence, contract.stage, [t.name for t in contract.tables]):
+            full = True  # a reader found damage the cheap check cannot see: look at every byte
         frags, out = self._fragments(sequence, contract.stage, manifest.fingerprint, rows=False)
         for b in range(len(manifest.blocks)):
             if b not in frags and not any(d.block == b for d in out):

@@ -120,6 +120,7 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     logs = [open_log(str(p)) for p in options.logs]
     if len({str(r.root) for r in logs}) < len(logs):
         raise ValueError("a target log is given twice")
+    _check_resumed_logs(options, logs, method.name)
     cfg = AdaptConfig(
         rounds=options.rounds,
         steps=options.steps,
@@ -137,14 +138,15 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     params = SelectionParams(
         keep=options.keep, min_confidence=options.min_confidence, max_confidence=options.max_confidence
     )
-    train, heldout, exclude = corrected_frames(options, logs, cfg)
-    source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
     settings = LabelSettings(
         scans=options.scans,
         device=options.device,
         clusterer=options.clusterer,
         estimate_poses=options.estimate_poses,
     )
+    _check_teacher_stages(method, settings, parent)
+    train, heldout, exclude = corrected_frames(options, logs, cfg)
+    source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
     labeller = TeacherLabeller(options.out, logs, method, settings, params, label_map, exclude, on_label)
     record = {
         "method": method.name,
@@ -188,6 +190,74 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
         f"wrote adapted checkpoint {options.out.resolve()} (rounds {len(done.epochs)}, last round's "
         f"pseudo-label coverage {last.get('coverage', float('nan')):.3f}, source probe mIoU {src:.4f})"
     )
+
+
+def _check_teacher_stages(method, settings: LabelSettings, parent: Path) -> None:
+    """The teacher's stage configs validated before any stage runs (``--clusterer bogus`` was
+    refused only after ingest, align and infer had run).
+
+    Raises:
+        ValueError: naming the option (``--clusterer 'bogus': not a kind it takes (expected: …)``).
+    """
+    from pydantic import ValidationError
+
+    from tasks.methods.base import flag
+
+    stages = method.stage_settings(settings.model_copy(update={"checkpoint": str(parent), "refine": True}))
+    pipeline = method.pipeline(method.options(settings), stages)
+    for name, config in stages.items():
+        try:
+            pipeline[name].Config.model_validate(config)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            head = str(err["loc"][0]) if err.get("loc") else name
+            ctx = err.get("ctx") or {}
+            what = (
+                f"{ctx.get('tag')!r}: not a kind it takes (expected: {ctx.get('expected_tags')})"
+                if err.get("type") == "union_tag_invalid"
+                else f"{err.get('msg', 'invalid')}"
+            )
+            option = flag(head) if head in LabelSettings.model_fields else f"stage {name} setting {head}"
+            raise ValueError(f"{option} {what}") from None
+
+
+def _check_resumed_logs(options: AdaptOptions, logs: list, method: str) -> None:
+    """A resume adapts to the logs (and with the method and selection) it was started with: a
+    finished adaptation resumed with other logs would otherwise say "wrote adapted checkpoint",
+    adapted to nothing new.
+
+    Raises:
+        ConfigError: naming the recorded and the given logs (or setting).
+    """
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.model.card import CARD, card_json
+
+    if not options.resume or not (options.out / CARD).is_file():
+        return
+    adapt = (card_json(options.out).get("training_data") or {}).get("adapt")
+    if adapt is None:
+        return  # not an adaptation: the trainer refuses the folder
+    recorded = [str(entry.get("root")) for entry in adapt.get("logs", [])]
+    given = [str(r.root) for r in logs]
+    changed = []
+    if recorded != given:
+        changed.append(f"LOG: {' '.join(recorded)} → {' '.join(given)}")
+    else:
+        prints = [entry.get("fingerprint") for entry in adapt.get("logs", [])]
+        moved = [str(r.root) for r, p in zip(logs, prints, strict=True) if p and log_fingerprint(r) != p]
+        if moved:
+            changed.append(f"LOG {' '.join(moved)}: its scans changed since the adaptation started")
+    if adapt.get("method") not in (None, method):
+        changed.append(f"--method: {adapt['method']!r} → {method!r}")
+    selection = adapt.get("selection") or {}
+    for key in ("keep", "min_confidence", "max_confidence"):
+        if key in selection and not math.isclose(selection[key], getattr(options, key)):
+            changed.append(f"--{key.replace('_', '-')}: {selection[key]!r} → {getattr(options, key)!r}")
+    if changed:
+        raise ConfigError(
+            f"{options.out} was adapted with other logs or settings: {'; '.join(changed)}. Resume with "
+            "what it was started with, or adapt into another --out"
+        )
 
 
 def _parent(options: AdaptOptions, method) -> Path:

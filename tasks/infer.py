@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator
+from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_serializer
 
 from storage.contract import ArraySpec
 from tasks.align import volume_scans
@@ -45,6 +46,9 @@ class InferConfig(StageConfig):
         tta_flip: also average each rotation's mirror image (2 × ``tta`` passes).
         equivariant: the ``n`` of a C_n-equivariant checkpoint the run asks for (``--equivariant``):
             labelling refuses a checkpoint trained with another n; None takes the card's.
+        argmax: ``labelled`` (default): a point's class is the argmax over the classes without
+            "unlabelled"; ``all``: over every class, the reference DS-Net's rule (reproducing its
+            published numbers with an imported checkpoint; points may then be labelled 0).
     """
 
     checkpoint: str | None = None
@@ -53,6 +57,16 @@ class InferConfig(StageConfig):
     tta: int = Field(1, ge=1, le=64)
     tta_flip: bool = False
     equivariant: int | None = Field(None, ge=1)
+    argmax: Literal["labelled", "all"] = "labelled"
+
+    @model_serializer(mode="wrap")
+    def _default_argmax_unrecorded(self, handler):
+        """The default rule is left out of the record, so runs made before the setting existed
+        keep their fingerprint (and are not recomputed)."""
+        data = handler(self)
+        if data.get("argmax") == "labelled":
+            data.pop("argmax")
+        return data
 
 
 def _check_device(device: str) -> None:
@@ -181,6 +195,7 @@ class InferStage(Stage):
             device=ctx.config.device,
             expect_label_map=label_map,
             tta=TTAConfig(rotations=ctx.config.tta, flip=ctx.config.tta_flip),
+            argmax=ctx.config.argmax,
         )
         align = ctx.arrays("align")
         thing = label_map.is_thing()

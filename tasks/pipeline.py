@@ -11,6 +11,9 @@ from dataclasses import dataclass
 
 from tasks.base import FRAME_LABEL, Stage
 
+OPTIONAL_STAGES = {"refine": "--no-refine"}
+"""Stages a method option leaves out of a pipeline, and the option that does."""
+
 
 @dataclass(frozen=True)
 class Pipeline:
@@ -65,6 +68,11 @@ class Pipeline:
     def check_stage(self, name: str | None) -> None:
         """Raise ValueError naming the stages when ``name`` (if given) is not one of them."""
         if name is not None and name not in self:
+            if name in OPTIONAL_STAGES and dict(self.options).get(name) is False:
+                raise ValueError(
+                    f"stage {name!r} is off in this run ({OPTIONAL_STAGES[name]}): its stages are "
+                    f"{self.names()}; drop the option to run {name}, or name one of these"
+                )
             raise ValueError(f"unknown stage {name!r}; stages are {self.names()}")
 
     def until(self, name: str | None) -> list[str]:

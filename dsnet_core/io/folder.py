@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dsnet_core.errors import LabelFormatError, PoseFormatError, SequenceLayoutError
+from dsnet_core.errors import DataFormatError, LabelFormatError, PoseFormatError, SequenceLayoutError
 from dsnet_core.io import kitti
 from dsnet_core.io.intensity import CONVENTIONS, infer_convention, normalise_intensity
 from dsnet_core.io.options import as_label_map
@@ -312,7 +312,9 @@ class FolderReader:
         return poses
 
     def _sequence_layout(self, sequence: str) -> tuple[int, str]:
-        """(.bin columns, intensity convention) of a sequence, decided once on its first scan."""
+        """(.bin columns, intensity convention) of a sequence, decided once on its first scan that
+        reads: a bad first scan is that frame's problem (quarantined alone with ``--on-error skip``),
+        not every frame's. With no readable scan, the first scan's error."""
         first = self._frames(sequence)[0].scan_path
         columns = self._bin_columns or 4
         if first.suffix.lower() == ".bin" and self._bin_columns is None:
@@ -320,7 +322,16 @@ class FolderReader:
             columns = bin_columns([p.stat().st_size for p in files], first.read_bytes())
         if self._intensity != "auto":
             return columns, self._intensity
-        return columns, infer_convention(read_points(first, columns, self.intensity_field).intensity, first)
+        first_error: DataFormatError | None = None
+        for frame in self._frames(sequence):
+            path = frame.scan_path
+            try:
+                intensity = read_points(path, columns, self.intensity_field).intensity
+                return columns, infer_convention(intensity, path)
+            except DataFormatError as exc:
+                first_error = first_error or exc
+        assert first_error is not None  # a sequence has at least one scan
+        raise first_error
 
 
 def _row_width(path: Path) -> int:

@@ -19,6 +19,7 @@ from safetensors.torch import load_file
 from dsnet_core.model.checkpoint import (
     SHIFT_WEIGHTS,
     CheckpointError,
+    check_finite,
     read_card,
     save_tensors,
     sha256_file,
@@ -61,6 +62,8 @@ def load_shift_weights(path: str | Path) -> dict[str, torch.Tensor] | None:
             "half-written, or saved before cards recorded it",
         )
     try:
-        return load_file(str(file))
+        state = load_file(str(file))
     except (SafetensorError, OSError) as exc:
         raise CheckpointError(file, f"cannot read the shifting weights: {exc}") from exc
+    check_finite(state, file)
+    return state

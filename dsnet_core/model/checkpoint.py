@@ -115,6 +115,7 @@ def load_checkpoint(
         state = load_file(str(weights), device=str(device))
     except (SafetensorError, OSError) as exc:
         raise CheckpointError(weights, f"cannot read weights: {exc}") from exc
+    check_finite(state, weights)
     model = DSNet(config).to(device)
     try:
         result = model.load_state_dict(state, strict=False)
@@ -127,3 +128,27 @@ def load_checkpoint(
             f"unexpected {result.unexpected_keys[:5]})",
         )
     return model, card
+
+
+def check_finite(state: dict[str, torch.Tensor], file: Path) -> None:
+    """Refuse weights holding NaN or infinity when a checkpoint is loaded (not later, in a stage
+    that sees only NaN positions). A finite sum proves a tensor finite; an infinite one is checked
+    element-wise (the sum of finite values may overflow).
+
+    Raises:
+        CheckpointError: naming ``file`` and the first tensors with non-finite values.
+    """
+    bad = [
+        key
+        for key, value in state.items()
+        if value.is_floating_point()
+        and not bool(torch.isfinite(value.sum()))
+        and not bool(torch.isfinite(value).all())
+    ]
+    if bad:
+        raise CheckpointError(
+            file,
+            f"weights hold NaN or infinite values ({len(bad)} tensor(s): {', '.join(bad[:4])}"
+            f"{' …' if len(bad) > 4 else ''}): the training diverged or the file is damaged; retrain, "
+            "resume from an earlier copy, or use another checkpoint",
+        )

@@ -16,13 +16,17 @@ from dsnet_core.model.checkpoint import ModelCard, load_checkpoint
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.tta import TTAConfig, tta_forward
 
+ARGMAX_RULES = ("labelled", "all")
+"""How a point's class is taken from its logits (:class:`Predictor`'s ``argmax``)."""
+
 
 @dataclass(frozen=True)
 class InferenceResult:
     """Per-point outputs of one cloud (or one 4D volume).
 
     Attributes:
-        sem: int64 ``(N,)`` predicted train id (argmax over classes 1..C-1; 0 is never predicted).
+        sem: int64 ``(N,)`` predicted train id (argmax over classes 1..C-1, 0 never predicted; over
+            0..C-1 with ``argmax="all"``).
         probs: float16 ``(N, C)`` softmax probabilities.
         offsets: float32 ``(N, 3)`` metres, point → predicted instance centre.
         features: float16 ``(N, D)`` instance features for the shifting module (D = 32).
@@ -68,6 +72,10 @@ class Predictor:
         threads: torch CPU threads for this process (one by default; None leaves it unchanged).
         tta: test-time augmentation (:mod:`dsnet_core.model.tta`); None or one rotation without
             flips is the plain forward pass.
+        argmax: ``"labelled"`` (default): each point's class is the argmax over classes 1..C-1, so
+            0 ("unlabelled") is never predicted; ``"all"``: over every class 0..C-1, the reference
+            DS-Net's ``calc_sem_label`` (to reproduce its published numbers with an imported
+            checkpoint; 0.4–0.7 % of points differ with random weights).
     """
 
     def __init__(
@@ -77,7 +85,11 @@ class Predictor:
         device: str = "cpu",
         threads: int | None = 1,
         tta: TTAConfig | None = None,
+        argmax: str = "labelled",
     ):
+        if argmax not in ARGMAX_RULES:
+            raise ValueError(f"argmax must be one of {ARGMAX_RULES}, got {argmax!r}")
+        self.argmax = argmax
         if threads is not None and torch.device(device).type == "cpu":
             torch.set_num_threads(threads)
         self.device = torch.device(device)
@@ -93,10 +105,11 @@ class Predictor:
         threads: int | None = 1,
         expect_label_map: LabelMap | None = None,
         tta: TTAConfig | None = None,
+        argmax: str = "labelled",
     ) -> Predictor:
         """Load a checkpoint folder (verified, see :func:`load_checkpoint`)."""
         model, card = load_checkpoint(path, device=device, expect_label_map=expect_label_map)
-        return cls(model, card, device=device, threads=threads, tta=tta)
+        return cls(model, card, device=device, threads=threads, tta=tta, argmax=argmax)
 
     @property
     def num_classes(self) -> int:
@@ -169,7 +182,7 @@ class Predictor:
             # every point takes its voxel's logits: softmax and argmax once per voxel (~3x fewer rows)
             vlogits = out.voxel_logits.float()
             vprobs = torch.softmax(vlogits, dim=1).to(torch.float16)
-            per_voxel = (quantise(vprobs) if quantised else vprobs, vlogits[:, 1:].argmax(dim=1) + 1)
+            per_voxel = (quantise(vprobs) if quantised else vprobs, self._classes(vlogits))
         start = 0
         for t in tensors:
             n = t.shape[0]
@@ -185,8 +198,14 @@ class Predictor:
                 logits = out.logits[sl].float()
                 probs = torch.softmax(logits, dim=1).to(torch.float16)
                 probs = quantise(probs) if quantised else probs
-                sem = logits[:, 1:].argmax(dim=1) + 1
+                sem = self._classes(logits)
             yield n, out, sl, probs, sem
+
+    def _classes(self, logits: torch.Tensor) -> torch.Tensor:
+        """int64 ``(M,)`` class per row of float ``(M, C)`` logits, by :attr:`argmax`'s rule."""
+        if self.argmax == "all":
+            return logits.argmax(dim=1)
+        return logits[:, 1:].argmax(dim=1) + 1
 
     def predict_stored_iter(
         self, clouds: Iterable[np.ndarray], keep: np.ndarray, batch_size: int = 1

@@ -87,8 +87,25 @@ def load_reference_file(src: Path) -> tuple[dict[str, torch.Tensor], dict]:
         CheckpointImportError: not a torch file, unreadable, needs arbitrary unpickling, or holds no
             state dict.
     """
+    if src.is_dir():
+        if (src / "card.json").is_file():
+            raise CheckpointImportError(
+                src,
+                "is a folder holding this product's checkpoint (card.json): it needs no import; use it "
+                "as it is (dsnet label --checkpoint FOLDER, or train from it with --init-from FOLDER)",
+            )
+        raise CheckpointImportError(
+            src, "is a folder: import-checkpoint reads one released file (*.pth / *.pt); give that file"
+        )
     if not src.is_file():
         raise CheckpointImportError(src, "no such file")
+    if _is_safetensors(src):
+        raise CheckpointImportError(
+            src,
+            "is a safetensors file, not a torch checkpoint: import-checkpoint reads the reference's "
+            "torch *.pth files; this product's own checkpoints are folders (model.safetensors + "
+            "card.json): give the folder to dsnet label --checkpoint",
+        )
     check_torch_file(src)
     try:
         with torch.serialization.safe_globals(_numpy_scalars()):
@@ -115,6 +132,15 @@ def load_reference_file(src: Path) -> tuple[dict[str, torch.Tensor], dict]:
     return _state_of(obj, src)
 
 
+def _is_safetensors(src: Path) -> bool:
+    """A safetensors file: an 8-byte little-endian header length, then a JSON header ``{...``."""
+    with open(src, "rb") as f:
+        head = f.read(9)
+    if len(head) < 9 or head[8:9] != b"{":
+        return src.suffix == ".safetensors"
+    return 2 <= int.from_bytes(head[:8], "little") <= src.stat().st_size - 8
+
+
 def _state_of(obj: object, src: Path) -> tuple[dict[str, torch.Tensor], dict]:
     info: dict = {}
     if isinstance(obj, dict) and "model_state" in obj:
@@ -130,6 +156,18 @@ def _state_of(obj: object, src: Path) -> tuple[dict[str, torch.Tensor], dict]:
         raise CheckpointImportError(
             src,
             "holds neither the reference's {'epoch', 'model_state', ...} dict nor a state dict of tensors",
+        )
+    integer = [
+        f"{k} ({str(v.dtype).removeprefix('torch.')})"
+        for k, v in state.items()
+        if not (v.is_floating_point() or k.endswith("num_batches_tracked"))
+    ]
+    if integer:
+        raise CheckpointImportError(
+            src,
+            f"{len(integer)} weight(s) are not floating point: {', '.join(integer[:6])}"
+            f"{' …' if len(integer) > 6 else ''}; released checkpoints store float32 weights (a file "
+            "converted to integers would import truncated values): re-save the float weights",
         )
     if all(k.startswith("module.") for k in state):
         state = {k[len("module.") :]: v for k, v in state.items()}

@@ -7,9 +7,11 @@ import os
 from pathlib import Path
 
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file
 
-from dsnet_core.model.checkpoint import save_tensors
+from dsnet_core.errors import CheckpointError
+from dsnet_core.model.checkpoint import save_tensors, sha256_file
 
 STATE_TENSORS, STATE_JSON = "train_state.safetensors", "train_state.json"
 
@@ -22,23 +24,44 @@ def save_train_state(path: Path, optimizer: torch.optim.Optimizer, marker: dict)
         for name, value in st.items():
             tensors[f"{pid}.{name}"] = value if torch.is_tensor(value) else torch.tensor(value)
     save_tensors(tensors, path / STATE_TENSORS)
-    meta = {"marker": marker, "param_groups": sd["param_groups"]}
+    meta = {
+        "marker": marker,
+        "param_groups": sd["param_groups"],
+        "tensors_sha256": sha256_file(path / STATE_TENSORS),
+    }
     tmp = path / (STATE_JSON + ".tmp")
     tmp.write_text(json.dumps(meta, indent=2, sort_keys=True))
     os.replace(tmp, path / STATE_JSON)
 
 
 def load_train_state(path: Path, optimizer: torch.optim.Optimizer, marker: dict) -> bool:
-    """Restore the optimiser if the saved state carries ``marker``; returns whether it did."""
+    """Restore the optimiser if the saved state carries ``marker``; returns whether it did.
+
+    Raises:
+        CheckpointError: the state files do not read, their tensors do not match the digest the
+            JSON records, or they do not fit the optimiser (never a silent mix of states).
+    """
     if not (path / STATE_JSON).is_file() or not (path / STATE_TENSORS).is_file():
         return False
-    meta = json.loads((path / STATE_JSON).read_text())
+    fix = f"delete {STATE_JSON} and {STATE_TENSORS} to resume with a fresh optimiser (not bit-identical)"
+    try:
+        meta = json.loads((path / STATE_JSON).read_text())
+        if not isinstance(meta, dict):
+            raise ValueError("not a JSON object")
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise CheckpointError(path / STATE_JSON, f"optimiser state is damaged ({exc}): {fix}") from None
     if meta.get("marker") != marker:
         return False
-    tensors = load_file(str(path / STATE_TENSORS))
-    state: dict[int, dict] = {}
-    for key, value in tensors.items():
-        pid, name = key.split(".", 1)
-        state.setdefault(int(pid), {})[name] = value
-    optimizer.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
+    recorded = meta.get("tensors_sha256")  # states written before it was recorded have none
+    if recorded is not None and sha256_file(path / STATE_TENSORS) != recorded:
+        raise CheckpointError(path / STATE_TENSORS, f"optimiser state does not match its record: {fix}")
+    try:
+        tensors = load_file(str(path / STATE_TENSORS))
+        state: dict[int, dict] = {}
+        for key, value in tensors.items():
+            pid, name = key.split(".", 1)
+            state.setdefault(int(pid), {})[name] = value
+        optimizer.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
+    except (SafetensorError, OSError, ValueError, KeyError, RuntimeError) as exc:
+        raise CheckpointError(path / STATE_TENSORS, f"optimiser state does not load ({exc}): {fix}") from None
     return True

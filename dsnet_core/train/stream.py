@@ -12,10 +12,14 @@ the samples are identical to the serial ones.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import multiprocessing
+import signal
+import threading
 from collections import OrderedDict
+from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
@@ -80,17 +84,21 @@ class StreamLog:
         """Start rendering ``names`` in the background, in this order (no-op without workers)."""
         if self.workers <= 0:
             return
-        if self._pool is None:
-            ctx = multiprocessing.get_context("spawn")
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx)
-        for name in names:
-            step = _step(name)
-            if step not in self._cache and step not in self._pending:
-                self._pending[step] = self._pool.submit(stream_sample, self.seed, step, self.options)
+        with sigint_ignored():  # workers spawned here ignore Ctrl-C: the parent stops them
+            if self._pool is None:
+                ctx = multiprocessing.get_context("spawn")
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx)
+            for name in names:
+                step = _step(name)
+                if step not in self._cache and step not in self._pending:
+                    self._pending[step] = self._pool.submit(stream_sample, self.seed, step, self.options)
 
     def close(self) -> None:
         """Stop the background workers."""
         if self._pool is not None:
+            if any(not f.done() for f in self._pending.values()):  # stopped mid-epoch (Ctrl-C)
+                for process in list(getattr(self._pool, "_processes", {}).values()):
+                    process.terminate()  # a sample in flight is not waited for: nothing uses it
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
         self._pending.clear()
@@ -161,6 +169,21 @@ class StreamLog:
         while len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
         return sample
+
+
+@contextlib.contextmanager
+def sigint_ignored() -> Iterator[None]:
+    """Ignore SIGINT while worker processes are spawned (main thread only): a spawned interpreter
+    that starts with SIGINT ignored keeps it ignored, so Ctrl-C reaches the parent alone (one line
+    from the command) instead of a KeyboardInterrupt traceback from each worker."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _step(name: str) -> int:

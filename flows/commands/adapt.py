@@ -13,6 +13,7 @@ from typing import Any
 import typer
 
 from flows.commands.common import errors_exit
+from flows.commands.model_folder import interrupted_exit, writing_folder
 
 
 def _parameter(name: str, field) -> inspect.Parameter:
@@ -39,12 +40,16 @@ def adapt_command():
     from tasks.adapt import AdaptOptions
 
     def adapt(**values: Any) -> None:
-        with errors_exit():
+        with errors_exit(), interrupted_exit():
             options = AdaptOptions(**values)
-            line = _run(options)
+            with writing_folder(options.out, "dsnet adapt"):
+                line = _run(options)
         typer.echo(line)
         typer.echo(f"metrics table: {options.out.resolve() / 'metrics.csv'}")
-        typer.echo(f"relabel: dsnet label LOG --run RUN --refine --checkpoint {options.out.resolve()}")
+        typer.echo(  # the k the student trained at (label's own default is k = 2)
+            f"relabel: dsnet label LOG --run RUN --refine --scans {options.scans} "
+            f"--checkpoint {options.out.resolve()}"
+        )
 
     fields = AdaptOptions.model_fields
     adapt.__signature__ = inspect.Signature([_parameter(n, f) for n, f in fields.items()])

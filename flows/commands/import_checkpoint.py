@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from flows.commands.common import errors_exit
+from flows.commands.model_folder import check_import_target, writing_folder
 
 
 def import_checkpoint(
@@ -23,9 +24,13 @@ def import_checkpoint(
     from dsnet_core.model.importer import import_checkpoint as run_import
 
     with errors_exit():
-        card = run_import(src, out, kind, layout=layout, rulebooks=rulebooks)
+        with writing_folder(out, "dsnet import-checkpoint"):
+            replaced = check_import_target(out)
+            card = run_import(src, out, kind, layout=layout, rulebooks=rulebooks)
     for line in summary_lines(out, card.architecture, card.training_data["imported"]):
         typer.echo(line)
+    if replaced:
+        typer.echo(replaced)
 
 
 _LAYOUTS = {"spconv1": "spconv 1.x (*kernel, in, out)", "spconv2": "spconv 2.x (out, *kernel, in)"}

@@ -70,12 +70,14 @@ def execute(request, workers: int | None, dask_address: str | None, debug: bool)
 
     from flows.commands.label_report import run_report
     from flows.pending import pending_sequences
+    from flows.preflight import check_content
     from flows.services import check_services
 
     with errors_exit():
         check_services(dask_address)  # PREFECT_API_URL and --dask-address, in seconds, before the rest
         request.check()
         pending = pending_sequences(request)
+        check_content(request, pending)  # what `describe` would find, before any server starts
     t0 = time.monotonic()
     summary = run_label(request, workers, dask_address, debug=debug) if pending else []
     for line in run_report(request.root, summary, time.monotonic() - t0, request.storage_options):

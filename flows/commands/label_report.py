@@ -35,6 +35,7 @@ def run_report(
         for r in summary:
             if r.get("action") == "failed":
                 lines.append(f"  failed: sequence {r['sequence']}: {r.get('error', '')}")
+        lines += quarantined_lines(store, seqs)
     lines.append("  " + headline(store))
     if store.root.exists(DASHBOARD):
         lines.append(f"  dashboard: {store.root.url(DASHBOARD)}")
@@ -69,3 +70,32 @@ def _labelled_frames(store, summary: list[dict[str, Any]]) -> int:
     except (StoreError, ValueError):  # a summary line must not fail the run
         return 0
     return sum(int(r.get("items") or 0) for r in summary if r["stage"] == labels)
+
+
+def quarantined_lines(store, sequences: list[str], shown: int = 5) -> list[str]:
+    """What ``--on-error skip`` left out: ``quarantined 1 of 4 frames (no labels): 00/000003: …``,
+    the first ``shown`` frames with their reasons (the rest: ``dsnet status`` and the frame table)."""
+    from storage.errors import StoreError
+    from tasks.ingest import FRAMES
+
+    found: list[tuple[str, str, str]] = []
+    total = 0
+    for seq in sequences:
+        try:
+            t = store.read_table(seq, FRAMES).select(["frame_id", "status", "reason"]).to_pydict()
+        except (StoreError, KeyError, ValueError):  # a summary line must not fail the run
+            continue
+        total += len(t["status"])
+        found += [
+            (seq, f, r or "")
+            for f, st, r in zip(t["frame_id"], t["status"], t["reason"], strict=True)
+            if st != "ok"
+        ]
+    if not found:
+        return []
+    lines = [f"  quarantined {len(found)} of {total} frames (--on-error skip; they have no labels):"]
+    for seq, frame, reason in found[:shown]:
+        lines.append(f"    {seq}/{frame}: {reason if len(reason) <= 200 else reason[:197] + '...'}")
+    if len(found) > shown:
+        lines.append(f"    … and {len(found) - shown} more")
+    return lines

@@ -16,6 +16,7 @@ from typing import Any
 import typer
 
 from flows.commands.common import errors_exit
+from flows.commands.model_folder import interrupted_exit, writing_folder
 
 train = typer.Typer(
     name="train",
@@ -56,13 +57,17 @@ def method_command(method):
     """The ``dsnet train <method>`` command of ``method`` (a :class:`~tasks.methods.base.Method`)."""
 
     def command(**values: Any) -> None:
-        with errors_exit():
+        from tasks.methods.resume import check_train_resume
+
+        with errors_exit(), interrupted_exit():
             options = method.TrainOptions(**values)
             if int(os.environ.get("WORLD_SIZE", "1")) > 1 and not method.data_parallel:
                 raise ValueError(
                     f"{method.name} trains in one process: run it without torchrun (or --nproc_per_node 1)"
                 )
-            line = _run(method, options)
+            with writing_folder(options.out, f"dsnet train {method.name}"):
+                check_train_resume(options)
+                line = _run(method, options)
         if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, the final lines from rank 0 only
             typer.echo(line)
             typer.echo(f"metrics table: {options.out.resolve() / 'metrics.csv'}")

@@ -73,6 +73,15 @@ class Dsnet(Method):
             bottom_up(self.name, (InferStage(),), "infer", resolve_temporal(options, stages)), options
         )
 
+    def scans(self, settings: LabelSettings) -> int:
+        """``--scans``; without it, the k the checkpoint was trained (or adapted) at, as its card
+        records it (an adapted k = 1 model is not fed 2-scan volumes), else :attr:`default_scans`."""
+        if settings.scans is None and settings.checkpoint:
+            found = card_scans(settings.checkpoint)
+            if found is not None:
+                return found
+        return super().scans(settings)
+
     def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
         stages = align_settings(self.scans(settings), settings.stride) | ingest_settings(settings)
         infer: dict[str, Any] = {}
@@ -111,6 +120,22 @@ class Dsnet(Method):
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
         assert isinstance(options, DsnetTrainOptions)
         return train_dsnet(self, options, on_step)
+
+
+def card_scans(checkpoint: str | Path) -> int | None:
+    """The k of a checkpoint's card: ``training_data.scans`` (trained, adapted), an import's kind
+    (``dsnet`` 1, ``dsnet4d`` 2), or None (no card, or it says nothing)."""
+    from dsnet_core.errors import CheckpointError
+    from dsnet_core.model.card import card_json
+
+    try:
+        data = card_json(Path(checkpoint).expanduser()).get("training_data") or {}
+    except CheckpointError:
+        return None  # the stage config's own checks name a missing or broken card
+    k = data.get("scans")
+    if isinstance(k, int) and not isinstance(k, bool) and k >= 1:
+        return k
+    return {"dsnet": 1, "dsnet4d": 2}.get((data.get("imported") or {}).get("kind"))
 
 
 DSNET = Dsnet()

@@ -42,7 +42,11 @@ class MostTrainOptions(StepOptions):
     epochs: str = Field("10", description="Epochs per stage: N for both, or 'detect=6,member=2'.")
     stage: Literal["detect", "member", "all"] = Field("all", description="detect | member | all.")
     scans: int = Field(3, ge=1, le=16, description="k: the current scan plus k-1 past ones.")
-    preset: str = Field("tiny", description="Backbone preset: tiny | small | paper.")
+    preset: str = Field(
+        "tiny",
+        description="Backbone preset: tiny | small | paper | reference (width 32, the imported "
+        "DS-Net's: with --init-from an import; slow on CPU) | cylinder3d.",
+    )
     grid: str | None = Field(None, description="Cylinder cells 'ρ,φ,z' (default: the preset's).")
 
 

@@ -33,7 +33,8 @@ def test_label_estimate_poses(synth_log, cli_env, tmp_path):
 
     res = label()
     assert res.returncode == 2, res.stdout + res.stderr
-    assert "align with scans=2 needs poses; the log has none" in res.stderr
+    assert "sequence 00: volumes of --scans 2 need poses and the log has none" in res.stderr
+    assert res.stderr.count("error:") == 1
     assert "dsnet label --estimate-poses" in res.stderr
 
     res = label("--estimate-poses")

@@ -183,3 +183,33 @@ def test_truncated_frames_partition_is_not_done_then_rewritten(finished, synth_l
     spec = P["ingest"].table("frames")
     assert RunStore(root).read_table(SEQ, spec).equals(RunStore(finished.root).read_table(SEQ, spec))
     _assert_export_identical(root, finished.predictions, tmp_path)
+
+
+def _flip(path: Path, at: int) -> None:
+    data = bytearray(path.read_bytes())
+    data[at] ^= 0x10
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("what", ["chunk", "parquet"])
+def test_a_bit_flip_export_finds_is_repaired_by_the_rerun(what, finished, synth_log, tmp_path):
+    """Issue 40: a bit-flipped chunk or parquet partition (same size): `export` said "rerun `dsnet
+    label`", `dsnet label` said "nothing to do" (its cheap check sees sizes), and export refused
+    again; only --from-stage got out. Now export notes what it found in the store, and the rerun
+    checks that stage in full and repairs it."""
+    root = _copy(finished, tmp_path)
+    if what == "chunk":
+        damaged = root / "sequences/00/stitch/arrays.zarr/label/c/2/0"
+        stage = "stitch"
+    else:
+        damaged = root / "tables/frames/sequence=00/part-0.parquet"
+        stage = "ingest"
+    _flip(damaged, 64 if what == "parquet" else damaged.stat().st_size // 2)  # parquet: a data page
+    assert _status(root)[0][stage] == "done"  # same size: the cheap check cannot see it
+    _one_line_error(_invoke("export", root, "--out", tmp_path / "bad"), str(damaged))
+    assert (root / "sequences/00/damage.json").is_file()
+
+    acts = _rerun(synth_log, root, finished)
+    assert acts[stage] == "repair", acts
+    assert not (root / "sequences/00/damage.json").exists()
+    _assert_export_identical(root, finished.predictions, tmp_path)

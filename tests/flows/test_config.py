@@ -120,7 +120,7 @@ def _refused(args: list[str], monkeypatch) -> str:
 
 REFUSED = [  # (config file text or None, --set entries, the error line; FILE: the file's path)
     (None, ["infer.ttx=2"], "--set infer.ttx=2: not a setting of stage infer (its settings: checkpoint, "
-     "device, batch, tta, tta_flip, equivariant)"),
+     "device, batch, tta, tta_flip, equivariant, argmax)"),
     (None, ["infer.tta=0"], "--set infer.tta=0: Input should be greater than or equal to 1"),
     (None, ["inferr.tta=2"], "--set inferr.tta=2: no stage 'inferr' in method dsnet (stages: ingest, "
      "align, infer, shift, fuse, stitch, refine, score)"),

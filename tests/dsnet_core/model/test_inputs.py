@@ -248,3 +248,72 @@ def test_refusal_names_the_log_the_sequence_and_the_input():
     )
     check_log_inputs(spec, "/logs/bare", "03", "uint8", "ck-rank")  # an intensity channel: fine
     check_log_inputs(InputSpec.parse("xyz,height"), "/logs/bare", "03", "none", "ck")  # needs none
+
+
+def _bare_pcd_log(root) -> None:
+    """A folder log (sequence ``drive1``) of two ASCII PCD scans with x y z and no intensity."""
+    from tests.helpers.tiny_log import tiny_frame
+
+    seq = root / "drive1"
+    seq.mkdir(parents=True)
+    for i in range(2):
+        pts = tiny_frame(i, n=1200)[0][:, :3]
+        head = (
+            "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+            f"WIDTH {len(pts)}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(pts)}\nDATA ascii\n"
+        )
+        (seq / f"{i:06d}.pcd").write_text(
+            head + "\n".join(" ".join(f"{v:.4f}" for v in p) for p in pts) + "\n"
+        )
+
+
+def test_infer_stage_refuses_a_log_without_intensity_for_a_remission_model(tmp_path):
+    from storage.run import RunStore
+    from tasks.methods import get_pipeline
+    from tasks.runner import prepare_stage, run_stage_plain
+
+    _bare_pcd_log(tmp_path / "log")
+    card = ModelCard(architecture={}, class_map=class_map_of(LM), training_data={}, code_version="test")
+    pipeline = get_pipeline(refine=False)
+    store = RunStore(tmp_path / "run")
+
+    def run_for(ckpt):
+        return {
+            **pipeline.record(),
+            "data": str(tmp_path / "log"),
+            "stages": {"align": {"scans": 1}, "infer": {"checkpoint": str(ckpt)}},
+            "options": {"block_size": 2},
+        }
+
+    rank = save_checkpoint(tmp_path / "rank", DSNet(_config("xyz,remission-rank")), card)
+    run = run_for(rank)
+    store.write_run_config("r1", run)
+    for stage in ("ingest", "align"):
+        run_stage_plain(store, pipeline, "drive1", stage, run, "r1")
+    with pytest.raises(MissingInputError) as err:
+        prepare_stage(store, pipeline, "drive1", "infer", run, "r1")
+    assert str(err.value).startswith(f"{tmp_path / 'log'}: sequence drive1 has no intensity channel")
+    assert "needs input 'remission-rank'" in str(err.value) and "\n" not in str(err.value)
+    xyz = save_checkpoint(tmp_path / "xyz", DSNet(_config("xyz,height")), card)  # needs no remission
+    ok = run_for(xyz)
+    store.write_run_config("r2", ok)
+    assert run_stage_plain(store, pipeline, "drive1", "infer", ok, "r2").n_items == 2
+
+
+def test_train_options_set_the_inputs_and_a_fine_tune_keeps_its_parents(tmp_path):
+    from tasks.methods.dsnet_train import DsnetTrainOptions, _check_inherited_inputs, model_config
+
+    opts = DsnetTrainOptions(out=tmp_path / "o", inputs="xyz,height,remission-rank", remission_dropout=0.3)
+    cfg = model_config(opts)
+    assert (cfg.inputs, cfg.remission_dropout) == ("xyz,remission-rank,height", 0.3)
+    assert model_config(DsnetTrainOptions(out=tmp_path / "o")) == model_config(
+        DsnetTrainOptions(out=tmp_path / "o", inputs="xyz,remission")
+    )
+    with pytest.raises(ConfigError, match="unknown input 'hieght'"):
+        model_config(DsnetTrainOptions(out=tmp_path / "o", inputs="xyz,hieght"))
+    card = ModelCard(architecture={}, class_map=class_map_of(LM), training_data={}, code_version="test")
+    parent = save_checkpoint(tmp_path / "p", DSNet(_config("xyz,remission-rank")), card)
+    _check_inherited_inputs(DsnetTrainOptions(out=tmp_path / "o"), parent)  # not given: inherited
+    _check_inherited_inputs(DsnetTrainOptions(out=tmp_path / "o", inputs="remission-rank,xyz"), parent)
+    with pytest.raises(ConfigError, match="trained with inputs xyz,remission-rank; a fine-tune keeps"):
+        _check_inherited_inputs(DsnetTrainOptions(out=tmp_path / "o", inputs="xyz"), parent)

@@ -317,3 +317,16 @@ def test_train_options_set_the_inputs_and_a_fine_tune_keeps_its_parents(tmp_path
     _check_inherited_inputs(DsnetTrainOptions(out=tmp_path / "o", inputs="remission-rank,xyz"), parent)
     with pytest.raises(ConfigError, match="trained with inputs xyz,remission-rank; a fine-tune keeps"):
         _check_inherited_inputs(DsnetTrainOptions(out=tmp_path / "o", inputs="xyz"), parent)
+
+
+def test_a_checkpoint_refuses_to_load_as_other_inputs(tmp_path):
+    from dsnet_core.errors import CheckpointMismatchError
+    from dsnet_core.model.checkpoint import load_checkpoint
+
+    card = ModelCard(architecture={}, class_map=class_map_of(LM), training_data={}, code_version="test")
+    save_checkpoint(tmp_path / "r", DSNet(_config("xyz,remission-rank")), card)
+    load_checkpoint(tmp_path / "r", expect_config=_config("remission-rank,xyz"))
+    with pytest.raises(
+        CheckpointMismatchError, match="inputs: expected None, checkpoint has 'xyz,remission-rank'"
+    ):
+        load_checkpoint(tmp_path / "r", expect_config=TEST_CONFIG)  # e.g. --resume without --inputs

@@ -87,6 +87,23 @@ def _check_device(device: str) -> None:
         raise ConfigError(f"--device {device}: this machine has no CUDA device (torch {torch.__version__})")
 
 
+def check_inputs(ctx: StageContext, spec, checkpoint) -> None:
+    """Refuse a sequence that lacks an input channel the model reads (``ingest`` recorded each
+    frame's source intensity convention; ``none`` = no intensity channel).
+
+    Raises:
+        MissingInputError: one line naming the log, the sequence and the input.
+    """
+    from dsnet_core.model.inputs import check_log_inputs
+
+    if spec.needs_remission is None:
+        return
+    column = ctx.frames.column("intensity_convention").to_pylist()
+    conventions = {c for c in column if c is not None}
+    for convention in sorted(conventions):
+        check_log_inputs(spec, ctx.run.data, ctx.sequence, convention, str(checkpoint))
+
+
 def model_meta(path, card) -> dict:
     """The plan facts of a model stage: the checkpoint folder, ``<folder>@<weights sha256[:12]>`` (the
     report's model card) and the card's class map (the run's label map downstream)."""
@@ -177,6 +194,7 @@ class InferStage(Stage):
                 f"--equivariant {want}: checkpoint {path} was trained with --equivariant {cfg.equivariant}; "
                 "label with its n, or train one with this n (dsnet train dsnet --equivariant N)"
             )
+        check_inputs(ctx, cfg.input_spec, path)
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),

@@ -57,14 +57,16 @@ class Voxelized:
 
 
 def cylinder_features(points: torch.Tensor, grid: CylinderGrid) -> tuple[torch.Tensor, torch.Tensor]:
-    """Cells and the 9 input features of one cloud.
+    """Cells and the 9 input features of one cloud (and any extra channels it carries).
 
     Args:
-        points: float ``(N, 4)`` x, y, z (metres), remission.
+        points: float ``(N, 4 + E)`` x, y, z (metres), remission, then E extra input channels
+            (:func:`dsnet_core.model.inputs.build_inputs`; E = 0 for a reader's cloud).
         grid: the grid.
 
     Returns:
-        cells: int64 ``(N, 3)`` clamped cell indices; features: float32 ``(N, 9)``.
+        cells: int64 ``(N, 3)`` clamped cell indices; features: float32 ``(N, 9 + E)``, the extra
+        channels last.
     """
     pts = points.to(torch.float32)
     x, y, z, r = pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 3]
@@ -78,7 +80,7 @@ def cylinder_features(points: torch.Tensor, grid: CylinderGrid) -> tuple[torch.T
     cells = torch.floor((torch.minimum(torch.maximum(pol, lo), hi) - lo) / step).to(torch.int64)
     cells = torch.minimum(torch.clamp_min(cells, 0), size - 1)
     centre = (cells.to(torch.float32) + 0.5) * step + lo
-    feats = torch.cat([pol - centre, pol, pts[:, :2], r[:, None]], dim=1)
+    feats = torch.cat([pol - centre, pol, pts[:, :2], r[:, None], pts[:, 4:]], dim=1)
     return cells, feats
 
 
@@ -99,7 +101,7 @@ def _reference_cells(pts: torch.Tensor, grid: CylinderGrid) -> tuple[torch.Tenso
     cells = torch.minimum(torch.clamp_min(cells, 0), size - 1)
     centre = (cells.to(torch.float32) + 0.5).to(torch.float64) * step + lo
     rel = (pol64 - centre).to(torch.float32)
-    return cells, torch.cat([rel, pol, pts[:, :2], pts[:, 3:4]], dim=1)
+    return cells, torch.cat([rel, pol, pts[:, :2], pts[:, 3:]], dim=1)
 
 
 def voxelize(clouds: list[torch.Tensor], grid: CylinderGrid) -> Voxelized:

@@ -105,7 +105,8 @@ def lift(clouds: list[torch.Tensor], grid: CylinderGrid, n: int) -> Lifted:
     permuted, up to one float32 rounding. Call :func:`check_equivariant_grid` first.
 
     Args:
-        clouds: float ``(N_b, 4)`` per cloud (x, y, z metres, remission), float32 or float64.
+        clouds: float ``(N_b, 4 + E)`` per cloud (x, y, z metres, remission, E extra input
+            channels, invariant under yaw and kept as they are), float32 or float64.
     """
     a = grid.size[1]
     f64 = torch.float64
@@ -118,7 +119,7 @@ def lift(clouds: list[torch.Tensor], grid: CylinderGrid, n: int) -> Lifted:
             cj[:, 1] = torch.remainder(cells[:, 1] - j * (a // n), a)
             phi = (cj[:, 1].to(f64) + 0.5) * grid.interval[1] + grid.min_bound[1] + rel[:, 1]
             xy = rotate_xy(pts[:, :2], angle)
-            feats = torch.cat([rel, pol[:, :1], phi[:, None], pol[:, 2:3], xy, pts[:, 3:4]], dim=1)
+            feats = torch.cat([rel, pol[:, :1], phi[:, None], pol[:, 2:3], xy, pts[:, 3:]], dim=1)
             cells_l.append(cj)
             feats_l.append(feats.to(torch.float32))
             xyz_l.append(torch.cat([xy, pts[:, 2:3]], dim=1).to(torch.float32))
@@ -128,8 +129,8 @@ def lift(clouds: list[torch.Tensor], grid: CylinderGrid, n: int) -> Lifted:
 def _polar64(cloud: torch.Tensor, grid: CylinderGrid):
     """:func:`~dsnet_core.model.cylinder.cylinder_features`' cells and polar parts in float64:
     cells int64 ``(N, 3)``, offsets from the cell centre ``(N, 3)``, (ρ, φ, z) ``(N, 3)`` and
-    the points ``(N, 4)``."""
-    pts = cloud[:, :4].to(torch.float64)
+    the points ``(N, 4 + E)``."""
+    pts = cloud.to(torch.float64)
     x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
     pol = torch.stack([torch.sqrt(x * x + y * y), torch.atan2(y, x), z], dim=1)
     lo = torch.tensor(grid.min_bound, dtype=torch.float64, device=pts.device)

@@ -17,6 +17,7 @@ from dsnet_core.model.backbone import AsymmetricUNet
 from dsnet_core.model.cylinder import voxelize
 from dsnet_core.model.equivariant import check_equivariant_grid, lift, pool, select_anchor
 from dsnet_core.model.heads import InstanceHead, PointEncoder, SemanticHead
+from dsnet_core.model.inputs import build_inputs
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.model.sparse_conv import SparseTensor
 
@@ -54,7 +55,9 @@ class DSNet(nn.Module):
         super().__init__()
         check_equivariant_grid(config.grid, config.equivariant)
         self.config = config
-        self.point_encoder = PointEncoder(9 + config.prior_channels, config.point_mlp, config.compress)
+        self.inputs = config.input_spec
+        n_in = 9 + self.inputs.extra_channels + config.prior_channels
+        self.point_encoder = PointEncoder(n_in, config.point_mlp, config.compress)
         self.backbone = AsymmetricUNet(
             config.compress, config.width, shared_rulebooks=config.rulebooks == "spconv1-shared"
         )
@@ -72,12 +75,15 @@ class DSNet(nn.Module):
         """Run the network.
 
         Args:
-            clouds: float ``(N_b, 4)`` per cloud (x, y, z metres, remission), on the model's device.
+            clouds: float ``(N_b, 4)`` per cloud (x, y, z metres, remission), on the model's device;
+                the network builds its input channels from them (``config.inputs``,
+                :func:`~dsnet_core.model.inputs.build_inputs`; remission dropout in training mode).
             instance: also run the instance head.
             priors: float ``(N_b, prior_channels)`` per cloud, the semantic prior (one-hot or class
                 confidences) of a prior-conditioned network; None otherwise.
         """
         cfg = self.config
+        clouds = build_inputs(clouds, self.inputs, cfg.remission_dropout, self.training)
         n, sizes = cfg.equivariant, [len(c) for c in clouds]
         total = sum(sizes)
         if n == 1:

@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, field
 
 from dsnet_core.errors import ConfigError
 from dsnet_core.model.grid import CylinderGrid
+from dsnet_core.model.inputs import DEFAULT_INPUTS, InputSpec
 
 #: How the backbone's submanifold convolutions find their neighbours.
 #: ``"per-layer"``: every layer with its own kernel shape (the architecture as declared).
@@ -35,6 +36,11 @@ class ModelConfig:
         equivariant: ``n`` of the C_n lifting (``dsnet_core.model.equivariant``); 1 = plain.
         pooling: invariant pooling of the semantic logits over the n rotations, "mean" or "max".
         rulebooks: one of :data:`RULEBOOKS`.
+        inputs: the input channels (:mod:`dsnet_core.model.inputs`): ``"xyz,remission"`` (the
+            reader's remission, the default), ``"xyz"`` (none), ``"xyz,remission-rank"``, each
+            optionally with ``",height"`` (height above the local ground, one more point feature).
+        remission_dropout: training only: the probability a cloud's remission is replaced by a
+            constant (:func:`dsnet_core.model.inputs.build_inputs`); recorded with the inputs.
     """
 
     width: int = 32
@@ -48,8 +54,14 @@ class ModelConfig:
     equivariant: int = 1
     pooling: str = "mean"
     rulebooks: str = "per-layer"
+    inputs: str = DEFAULT_INPUTS
+    remission_dropout: float = 0.0
 
     def __post_init__(self) -> None:
+        spec = InputSpec.parse(self.inputs)  # raises ConfigError naming a bad token
+        object.__setattr__(self, "inputs", str(spec))  # canonical order, so cards compare equal
+        if not 0.0 <= self.remission_dropout < 1.0:
+            raise ConfigError(f"remission dropout must be in [0, 1), got {self.remission_dropout}")
         if self.rulebooks not in RULEBOOKS:
             raise ConfigError(f"unknown rulebooks '{self.rulebooks}' (choose from {', '.join(RULEBOOKS)})")
         if self.prior_channels < 0:
@@ -58,6 +70,11 @@ class ModelConfig:
             raise ConfigError(f"--equivariant needs n >= 1, got {self.equivariant}")
         if self.pooling not in POOLINGS:
             raise ConfigError(f"unknown invariant pooling '{self.pooling}' (choose {', '.join(POOLINGS)})")
+
+    @property
+    def input_spec(self) -> InputSpec:
+        """The parsed :attr:`inputs`."""
+        return InputSpec.parse(self.inputs)
 
     def to_dict(self) -> dict:
         """The architecture as a card records it. The D-PLS, equivariant and rulebooks fields appear
@@ -95,6 +112,8 @@ _OPTIONAL = {
     "equivariant": 1,
     "pooling": "mean",
     "rulebooks": "per-layer",
+    "inputs": DEFAULT_INPUTS,
+    "remission_dropout": 0.0,
 }
 
 #: DS-Net's released networks (hongfz16/DS-Net cfgs/release/*.yaml): grid 480×360×32 over

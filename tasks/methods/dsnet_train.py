@@ -44,6 +44,14 @@ class DsnetTrainOptions(StepOptions):
     patience: int = Field(0, ge=0, description="Early stop after N epochs without a better score.")
     equivariant: int = Field(1, ge=1, description="Eq-4D: a C_n yaw-equivariant network (n divides φ cells).")
     pooling: Literal["mean", "max"] = Field("mean", description="Equivariant: invariant pooling.")
+    inputs: str = Field(
+        "xyz,remission",
+        description="Input channels: xyz, plus remission (raw) or remission-rank (per-scan quantiles), "
+        "plus height (above the fitted ground); e.g. 'xyz,remission-rank,height'. 'xyz' alone: no remission.",
+    )
+    remission_dropout: float = Field(
+        0.0, ge=0.0, lt=1.0, description="Training: probability a scan's remission is replaced by a constant."
+    )
     stream: int = Field(0, ge=0, description="Train on N never-seen generated sequences per epoch.")
     stream_styles: str | None = Field(None, description="--stream: street styles (default: all).")
     stream_sensors: str | None = Field(None, description="--stream: sensors (default: all).")
@@ -57,10 +65,12 @@ class DsnetTrainOptions(StepOptions):
 
 
 def model_config(options: DsnetTrainOptions):
-    """The architecture of a new checkpoint: the preset, ``--grid`` cells, equivariance.
+    """The architecture of a new checkpoint: the preset, ``--grid`` cells, equivariance, the input
+    channels and remission dropout (:mod:`dsnet_core.model.inputs`).
 
     Raises:
         ValueError: an unknown preset, or a grid that is not three cell counts ≥ 1.
+        ConfigError: an unknown input channel.
     """
     from dsnet_core.model.presets import get_preset
 
@@ -69,7 +79,36 @@ def model_config(options: DsnetTrainOptions):
         config = replace(config, grid=replace(config.grid, size=parse_grid(options.grid)))
     if options.equivariant != 1 or options.pooling != "mean":
         config = replace(config, equivariant=options.equivariant, pooling=options.pooling)
+    if options.inputs != config.inputs or options.remission_dropout:
+        config = replace(config, inputs=options.inputs, remission_dropout=options.remission_dropout)
     return config
+
+
+def _check_inherited_inputs(options: DsnetTrainOptions, init_from) -> None:
+    """A fine-tune keeps its parent's inputs: refuse ``--inputs``/``--remission-dropout`` given
+    explicitly with other values than the ``--init-from`` model's card.
+
+    Raises:
+        ConfigError: naming both.
+    """
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.model.checkpoint import read_card
+    from dsnet_core.model.inputs import InputSpec
+
+    given = options.model_fields_set & {"inputs", "remission_dropout"}
+    if not given:
+        return
+    parent = read_card(init_from).config
+    if "inputs" in given and str(InputSpec.parse(options.inputs)) != parent.inputs:
+        raise ConfigError(
+            f"--inputs {options.inputs}: the --init-from model {init_from} was trained with inputs "
+            f"{parent.inputs}; a fine-tune keeps its parent's inputs"
+        )
+    if "remission_dropout" in given and options.remission_dropout != parent.remission_dropout:
+        raise ConfigError(
+            f"--remission-dropout {options.remission_dropout}: the --init-from model {init_from} has "
+            f"{parent.remission_dropout}; a fine-tune keeps its parent's"
+        )
 
 
 def parse_grid(text: str) -> tuple[int, int, int]:
@@ -142,6 +181,8 @@ def train_dsnet(method: Method, options: DsnetTrainOptions, on_step: StepCallbac
             log.warning("no validation set given: validating on the training sequences")
         cfg = config_from(TrainConfig, options.model_dump(), epochs=epochs)
         init_from = options.start_from(method, options.scans)
+        if init_from is not None:
+            _check_inherited_inputs(options, init_from)
         lift = (options.equivariant, options.pooling) if init_from and options.equivariant != 1 else None
         trainer = Trainer(
             options.out, config, data.reader, data.sequences, data.val_reader, data.val_sequences,

@@ -18,15 +18,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dsnet_core.temporal.align import split_volume
-from tasks.align import AlignStage
+from storage.contract import ArraySpec
 
 if TYPE_CHECKING:
     from storage.arrays import StageArrays
     from storage.run import RunStore
     from tasks.pipeline import Pipeline
 
-SOURCE = tuple(a for a in AlignStage.arrays if a.name in ("source_frame", "source_index"))
-"""The declarations that map a volume's points to their frames (align's)."""
+SOURCE = (
+    ArraySpec("source_frame", "int32", doc="frame index (sequence) of each point", codec="shuffle-lz4"),
+    ArraySpec("source_index", "int32", doc="point index in its source scan", codec="shuffle-lz4"),
+)
+"""The declarations that map a volume's points to their frames (``align`` declares them)."""
 
 
 def nearest(pipeline: Pipeline, name: str, wanted: tuple, item: str | None = None, itself: bool = False):

@@ -73,9 +73,9 @@ class PriorStage(Stage):
 
     @staticmethod
     def checkpoint(ctx: StageContext):
-        from dsnet_core.checkpoints import resolve_checkpoint
+        from dsnet_core.checkpoints import DSNET
 
-        return resolve_checkpoint(ctx.config.checkpoint, 1)
+        return DSNET.resolve(ctx.config.checkpoint, 1)
 
     def inputs(self, ctx: StageContext) -> str:
         from dsnet_core.io.prior import find_prior

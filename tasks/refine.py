@@ -35,12 +35,9 @@ from pydantic import Field
 from storage.contract import TableSpec
 from storage.errors import StoreError
 from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.confidence import PROBS
 from tasks.frames import SOURCE
-from tasks.infer import InferStage
 from tasks.track_ids import track_generations
-
-PROBS = next(a for a in InferStage.arrays if a.name == "probs")
-"""The declaration of per-point class probabilities (uint8 ``q / 255``, per volume)."""
 
 
 class RefineConfig(StageConfig):

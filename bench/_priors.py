@@ -27,11 +27,11 @@ def _frames(log: Path):
 
 
 def _corrupt(log: Path, scale: float, seed: int) -> list[tuple]:
-    from dsnet_core.checkpoints import bundled_dpls_checkpoint
+    from dsnet_core.checkpoints import DPLS
     from dsnet_core.model.checkpoint import read_card
     from dsnet_core.train.prior_noise import PriorNoise, corrupt_prior, scale_confusion
 
-    card = read_card(bundled_dpls_checkpoint())
+    card = read_card(DPLS.bundled())
     confusion = scale_confusion(np.asarray(card.training_data["prior_noise"]["confusion"]), scale)
     noise = PriorNoise(confusion, strength=(0.0, 0.0))
     out = []

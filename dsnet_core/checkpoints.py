@@ -1,151 +1,213 @@
-"""Every method's checkpoints in one place, above the packages of the networks (``model/``,
-``most/``): the bundled demo models, resolving a ``--checkpoint`` (or the bundled one) per method,
-and a checkpoint's content digest (what a model stage puts in its fingerprint).
+"""Every method's checkpoints, described once per method, above the packages of the networks
+(``model/``, ``most/``): a card kind per checkpoint format (:data:`CARD_KINDS`: which method's
+network a folder holds and how its card is read) and a :class:`Checkpoints` description per method
+(its bundled models, resolving a ``--checkpoint`` or the bundled one, reading its card with a hint
+naming the method of another kind's card). A method object (``tasks.methods``) holds its
+description; stages resolve through it; :func:`checkpoint_digest` reads any card through its kind.
 
 The bundled DS-Net models live in the package at ``dsnet_core/data/models/tiny-v2/`` (single
 scans) and ``tiny-v2-4d/`` (its joint 2-scan fine-tune), shipped by ``pyproject``'s package data;
-``most/`` (and ``most-1/`` when present) and ``dpls/`` are MOST's and D-PLS's. ``tiny/`` and
-``tiny-4d/`` are the predecessors the MOST and D-PLS models started from, kept for the benchmarks
-that compare with them; nothing defaults to them. When a copy of the package lacks a model,
-``bundled_*`` returns None and callers say so.
+``most/`` (and ``most-1/`` when present) and ``dpls/`` are MOST's and D-PLS's; ``tiny-v2-eq4/`` is
+the C4-equivariant DS-Net. ``tiny/`` and ``tiny-4d/`` are the predecessors the MOST and D-PLS
+models started from, kept for the benchmarks that compare with them; nothing defaults to them.
+When a copy of the package lacks a model, ``bundled`` returns None and callers say so.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
-from dsnet_core.model.card import SHIFT_WEIGHTS, CheckpointError, read_card, sha256_file
+from dsnet_core.model.card import (
+    CARD,
+    FORMAT,
+    SHIFT_WEIGHTS,
+    CheckpointError,
+    ModelCard,
+    card_json,
+    read_card,
+    sha256_file,
+)
+from dsnet_core.most.card import MOST_FORMAT, read_most_card
 
 MODELS = Path(__file__).resolve().parent / "data" / "models"
-BUNDLED_NAME = "tiny-v2"
-BUNDLED_4D_NAME = "tiny-v2-4d"
-#: bundled MOST models: the accumulated-input one (k = 3) and, when present, a single-scan one
-BUNDLED_MOST_NAMES = {3: "most", 1: "most-1"}
-BUNDLED_DPLS_NAME = "dpls"
-#: bundled C_n-equivariant DS-Net models (Eq-4D), by n
-BUNDLED_EQUIVARIANT_NAMES = {4: "tiny-v2-eq4"}
 
 
-def bundled_dir(scans: int = 1) -> Path:
-    """Where the bundled demo checkpoint for ``scans``-scan volumes lives inside the package:
-    ``tiny-v2`` (single scans) or ``tiny-v2-4d`` (fine-tuned jointly on 2-scan volumes, used for
-    every k > 1)."""
-    name = BUNDLED_NAME if scans <= 1 else BUNDLED_4D_NAME
-    return MODELS / name
+@dataclass(frozen=True)
+class CardKind:
+    """One checkpoint format: the method whose network it holds (its title for messages) and the
+    reader that validates its card."""
+
+    format: str
+    method: str
+    title: str
+    read: Callable[[Path], ModelCard]
+
+
+CARD_KINDS: dict[str, CardKind] = {
+    k.format: k
+    for k in (
+        CardKind(FORMAT, "dsnet", "DS-Net", read_card),
+        CardKind(MOST_FORMAT, "most", "MOST", read_most_card),
+    )
+}
+"""Every checkpoint format by its card's ``format`` (D-PLS's network is a DS-Net with a prior
+input: its cards are DS-Net cards)."""
+
+
+def card_kind(path: str | Path) -> CardKind:
+    """The kind of the checkpoint folder ``path`` by its card's ``format``.
+
+    Raises:
+        CheckpointError: no readable card, or an unknown format (naming the known ones).
+    """
+    fmt = card_json(Path(path)).get("format")
+    if fmt not in CARD_KINDS:
+        raise CheckpointError(
+            Path(path) / CARD, f"unknown checkpoint format {fmt!r} (known: {sorted(CARD_KINDS)})"
+        )
+    return CARD_KINDS[fmt]
+
+
+def checkpoint_method(path: str | Path) -> str:
+    """Which method's network a checkpoint folder holds (its :class:`CardKind`'s ``method``)."""
+    return card_kind(path).method
+
+
+@dataclass(frozen=True)
+class Checkpoints:
+    """A method's checkpoints.
+
+    Attributes:
+        title: the method's name in messages (``MOST``).
+        kind: the card kind its checkpoints have.
+        bundled_names: the bundled folders (under :data:`MODELS`) for k scans, in preference order.
+        hint: how to get one when none is given and none is bundled (the end of the error).
+    """
+
+    title: str
+    kind: CardKind
+    bundled_names: Callable[[int], tuple[str, ...]]
+    hint: str
+
+    def bundled(self, scans: int = 1) -> Path | None:
+        """The first bundled checkpoint of :attr:`bundled_names` for ``scans``, or None."""
+        for name in self.bundled_names(scans):
+            if _is_checkpoint(MODELS / name):
+                return MODELS / name
+        return None
+
+    def read_card(self, path: str | Path) -> ModelCard:
+        """The card of ``path``, validated by this method's card kind.
+
+        Raises:
+            CheckpointError: no card, a malformed one, or another kind's (naming its method).
+        """
+        path = Path(path).expanduser()
+        fmt = card_json(path).get("format")
+        other = CARD_KINDS.get(fmt)
+        if other is not None and other is not self.kind:
+            raise CheckpointError(
+                path / CARD,
+                f"not a {self.title} checkpoint (format {fmt!r}, expected {self.kind.format}) — a "
+                f"{other.title} checkpoint: label with --method {other.method}",
+            )
+        return self.kind.read(path)
+
+    def resolve(self, path: str | Path | None, scans: int = 1) -> Path:
+        """``path`` (its card read: a typed error naming the file when it is not one of this
+        method's checkpoints), or the bundled model for ``scans`` when None.
+
+        Raises:
+            CheckpointError: None given and none bundled, or ``path`` is not such a checkpoint.
+        """
+        if path is None:
+            found = self.bundled(scans)
+            if found is None:
+                raise CheckpointError(MODELS, f"no bundled {self.title} model: {self.hint}")
+            return found
+        path = Path(path).expanduser()
+        self.read_card(path)
+        return path
 
 
 def _is_checkpoint(path: Path) -> bool:
     return (path / "card.json").is_file() and (path / "model.safetensors").is_file()
 
 
-def bundled_equivariant_checkpoint(n: int) -> Path | None:
-    """The bundled C_n-equivariant DS-Net model (``dsnet label --equivariant n`` without
-    ``--checkpoint``), or None when none is bundled for ``n``."""
-    name = BUNDLED_EQUIVARIANT_NAMES.get(n)
-    return None if name is None or not _is_checkpoint(MODELS / name) else MODELS / name
+def _by_scans(names: Mapping[int, str]) -> Callable[[int], tuple[str, ...]]:
+    """The bundled name for k (the largest key ≤ k first), then the single-scan one."""
+
+    def pick(scans: int) -> tuple[str, ...]:
+        keys = sorted((k for k in names if k <= max(scans, 1)), reverse=True)
+        return tuple(dict.fromkeys([names[k] for k in keys] + [names[min(names)]]))
+
+    return pick
+
+
+DSNET = Checkpoints(
+    "DS-Net",
+    CARD_KINDS[FORMAT],
+    _by_scans({1: "tiny-v2", 2: "tiny-v2-4d"}),
+    "pass a checkpoint (dsnet label --checkpoint PATH)",
+)
+"""DS-Net's: ``tiny-v2`` (single scans) and ``tiny-v2-4d`` (every k > 1; the single-scan one when
+the 4D one is not bundled)."""
+DSNET_EQUIVARIANT = {
+    n: Checkpoints(
+        f"C{n}-equivariant DS-Net",
+        CARD_KINDS[FORMAT],
+        lambda scans, n=n: (f"tiny-v2-eq{n}",),
+        f"pass a checkpoint (dsnet label --equivariant {n} --checkpoint PATH)",
+    )
+    for n in (4,)
+}
+"""DS-Net's C_n-equivariant models by n (``dsnet label --equivariant n`` without ``--checkpoint``)."""
+MOST = Checkpoints(
+    "MOST",
+    CARD_KINDS[MOST_FORMAT],
+    lambda scans: ("most-1", "most") if scans <= 1 else ("most",),
+    "pass a MOST checkpoint (dsnet label --method most --checkpoint PATH; train one with dsnet train most)",
+)
+"""MOST's: the accumulated-input model (k = 3), and for k = 1 a single-scan one when bundled."""
+DPLS = Checkpoints(
+    "D-PLS",
+    CARD_KINDS[FORMAT],
+    lambda scans: ("dpls",),
+    "pass a D-PLS checkpoint (dsnet label --method dpls --checkpoint PATH; train one with dsnet train dpls)",
+)
+"""D-PLS's instance network (``dpls/``, one model for every k)."""
+
+
+def bundled_dir(scans: int = 1) -> Path:
+    """Where DS-Net's bundled model for ``scans``-scan volumes lives inside the package (whether or
+    not this copy holds it)."""
+    return MODELS / DSNET.bundled_names(scans)[0]
 
 
 def bundled_checkpoint(scans: int = 1) -> Path | None:
-    """The bundled demo checkpoint for ``scans``-scan volumes (the 4D one when k > 1 and it is
-    bundled, else the single-scan one), or None when no trained model is bundled."""
-    for path in (bundled_dir(scans), bundled_dir(1)):
-        if _is_checkpoint(path):
-            return path
-    return None
-
-
-def bundled_most_checkpoint(scans: int = 3) -> Path | None:
-    """The bundled MOST checkpoint for ``scans``-scan input: the single-scan one for k = 1 when it
-    is bundled, else the accumulated-input one; None when no MOST model is bundled."""
-    root = MODELS
-    names = [BUNDLED_MOST_NAMES[1]] if scans <= 1 else []
-    for path in [root / n for n in [*names, BUNDLED_MOST_NAMES[3]]]:
-        if _is_checkpoint(path):
-            return path
-    return None
+    """DS-Net's bundled checkpoint for ``scans`` (:attr:`DSNET`'s :meth:`~Checkpoints.bundled`)."""
+    return DSNET.bundled(scans)
 
 
 def resolve_checkpoint(path: str | Path | None, scans: int = 1) -> Path:
-    """``path``, or the bundled model for ``scans``-scan volumes when None.
-
-    Raises:
-        CheckpointError: None given and no bundled model, or ``path`` holds no model card.
-    """
-    if path is None:
-        found = bundled_checkpoint(scans)
-        if found is None:
-            raise CheckpointError(
-                bundled_dir(), "no bundled model: pass a checkpoint (dsnet label --checkpoint PATH)"
-            )
-        return found
-    path = Path(path).expanduser()
-    read_card(path)  # typed error naming the file when it is not a checkpoint
-    return path
-
-
-def bundled_dpls_checkpoint() -> Path | None:
-    """The bundled D-PLS instance network (``dsnet_core/data/models/dpls/``), or None when absent."""
-    path = bundled_dir().parent / BUNDLED_DPLS_NAME
-    return path if _is_checkpoint(path) else None
-
-
-def resolve_dpls_checkpoint(path: str | Path | None) -> Path:
-    """``path`` (a D-PLS checkpoint folder), or the bundled D-PLS model when None.
-
-    Raises:
-        CheckpointError: None given and no bundled D-PLS model, or ``path`` holds no model card.
-    """
-    if path is None:
-        found = bundled_dpls_checkpoint()
-        if found is None:
-            raise CheckpointError(
-                bundled_dir().parent / BUNDLED_DPLS_NAME,
-                "no bundled D-PLS model: pass a D-PLS checkpoint (dsnet label --method dpls --checkpoint "
-                "PATH; train one with dsnet train dpls)",
-            )
-        return found
-    path = Path(path).expanduser()
-    read_card(path)
-    return path
-
-
-def resolve_most_checkpoint(path: str | Path | None, scans: int = 3) -> Path:
-    """``path`` (a MOST checkpoint folder), or the bundled MOST model for ``scans``-scan input.
-
-    Raises:
-        CheckpointError: None given and no bundled MOST model, or ``path`` is not a MOST checkpoint
-            (a DS-Net one included: the message says which method it belongs to).
-    """
-    from dsnet_core.most.card import read_most_card
-
-    if path is None:
-        found = bundled_most_checkpoint(scans)
-        if found is None:
-            raise CheckpointError(
-                bundled_dir().parent,
-                "no bundled MOST model: pass a MOST checkpoint (dsnet label --method most --checkpoint "
-                "PATH; train one with dsnet train most)",
-            )
-        return found
-    path = Path(path).expanduser()
-    read_most_card(path)  # typed error naming the card when it is not a MOST checkpoint
-    return path
+    """DS-Net's :meth:`~Checkpoints.resolve` (the default method's: the demo and the prior use it)."""
+    return DSNET.resolve(path, scans)
 
 
 def checkpoint_digest(path: str | Path) -> str:
-    """A content digest of a checkpoint (either method's): the card (which holds the weights'
-    sha256) and the shifting weights' sha256. Cheap: the network weights are not re-read
-    (``load_checkpoint`` verifies them against the card's hash when the model is loaded).
+    """A content digest of a checkpoint of any kind: the card (read by its :func:`card_kind`, which
+    holds the weights' sha256) and the shifting weights' sha256. Cheap: the network weights are not
+    re-read (loading the model verifies them against the card's hash).
 
     Returns:
         32 hex digits.
     """
-    from dsnet_core.most.card import checkpoint_method, read_most_card
-
     path = Path(path)
-    card = read_most_card(path) if checkpoint_method(path) == "most" else read_card(path)
+    card = card_kind(path).read(path)
     h = hashlib.blake2b(digest_size=16)
     h.update(
         json.dumps({k: v for k, v in card.__dict__.items() if k != "code_version"}, sort_keys=True).encode()

@@ -29,7 +29,7 @@ import numpy as np
 from storage.errors import DamagedStoreError, StoreError
 from storage.run import RunStore
 from tasks.base import labels_contract
-from tasks.ingest import FRAMES
+from tasks.ingest import FRAMES, IngestStage
 from tasks.run_config import read_run
 
 
@@ -201,7 +201,7 @@ class _SourcePoints:
         keep = self.reader.kept_points(self.refs[seq][frame_id])
         if keep is None or int(keep.sum()) != len(label):
             raise StoreError(
-                self.store.where(seq, "ingest"),
+                self.store.where(seq, IngestStage.name),
                 f"frame {frame_id}: the log's scan no longer matches the run's ({len(label)} labelled "
                 "points); relabel it",
             )

@@ -22,6 +22,7 @@ from storage.errors import StoreError
 from storage.locks import LockSet, Owner
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
+from tasks.score import ScoreStage
 
 
 def label(request: LabelRequest, isolate: bool = False) -> list[dict[str, Any]]:
@@ -45,7 +46,7 @@ def label(request: LabelRequest, isolate: bool = False) -> list[dict[str, Any]]:
             run_stage(store, pipeline, stage, sequences, run, state, force=stage in forced)
         summary = state.rows()
         report_run(store, run_id, summary)
-        if "score" in state.stages or pipeline.labels in state.stages:  # report, dashboard, artifacts
+        if ScoreStage.name in state.stages or pipeline.labels in state.stages:  # report, dashboard, artifacts
             _publish(request, pipeline, state.log)  # still under the locks: another run waits
     return summary
 

@@ -12,6 +12,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from tasks.base import RunOptions
+from tasks.ingest import IngestStage
 from tasks.methods import DEFAULT_METHOD, LabelSettings, Method, get_method
 from tasks.pipeline import Pipeline
 from tasks.run_config import RunConfig
@@ -143,10 +144,10 @@ class LabelRequest(BaseModel):
         """
         names = pipeline.names() if names is None else names
         out = {name: dict(self.stages.get(name, {})) for name in names}
-        if "ingest" in out and out["ingest"].get("grid") is None:
+        if IngestStage.name in out and out[IngestStage.name].get("grid") is None:
             grid = self.the_method().model_grid(self.stages)
             if grid is not None:
-                out["ingest"]["grid"] = grid
+                out[IngestStage.name]["grid"] = grid
         return out
 
     def run_config(

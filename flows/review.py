@@ -10,6 +10,7 @@ from dsnet_core.review.folder import ReviewFrame, write_review_folder
 from flows.report.confidence import frame_confidence_rows
 from storage.run import RunStore
 from tasks.base import labels_contract
+from tasks.confidence import model_stage
 from tasks.run_config import read_run
 
 TERMS = ("score", "semantic", "agreement", "size", "stitch", "n_instances")
@@ -38,7 +39,8 @@ def export_review(root: str, out: str | Path, top: int, storage_options: dict | 
         frames.append(
             ReviewFrame(r["sequence"], ref.frame_id, reader.scan(ref), label, {k: r[k] for k in TERMS})
         )
-    infer = store.read_manifest(rows[0]["sequence"], "infer")
+    model = model_stage(pipeline)
+    infer = None if model is None else store.read_manifest(rows[0]["sequence"], model)
     source = {
         "run": store.uri,
         "data": run.data,

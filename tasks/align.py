@@ -17,6 +17,7 @@ from dsnet_core.errors import PoseFormatError
 from dsnet_core.temporal.align import build_volume, plan_windows
 from storage.contract import ArraySpec, TableSpec
 from tasks.base import ItemResult, Plan, Stage, StageConfig, StageContext
+from tasks.frames import SOURCE
 from tasks.ingest import frame_checksum
 
 VOLUMES = TableSpec(
@@ -86,8 +87,7 @@ class AlignStage(Stage):
             doc="x, y, z (m, reference sensor frame), remission",
             codec="shuffle-lz4",
         ),
-        ArraySpec("source_frame", "int32", doc="frame index (sequence) of each point", codec="shuffle-lz4"),
-        ArraySpec("source_index", "int32", doc="point index in its source scan", codec="shuffle-lz4"),
+        *SOURCE,
         ArraySpec("labels", "uint32", optional=True, doc="raw semantic | instance << 16 (ground truth)"),
     )
     tables = (VOLUMES,)

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from dsnet_core.labels import LabelMap
     from storage.arrays import StageArrays
     from storage.manifest import Manifest
+    from tasks.frames import FrameValues
     from tasks.pipeline import Pipeline
     from tasks.run_config import RunConfig
 
@@ -135,6 +136,18 @@ class Stage(ABC):
         :class:`~tasks.pipeline.Pipeline` as it is built; the default checks nothing)."""
         return None
 
+    def reads(self, pipeline: Pipeline) -> dict[str, tuple[str, ...]]:
+        """The arrays this stage reads of stages further up than its ``upstream`` (``{"align":
+        ("points",)}``): a stage reads arrays and tables only of itself, its ``upstream`` and these
+        (:meth:`StageContext.arrays` refuses the others). They must be upstream of one of its
+        ``upstream`` stages, so its fingerprint covers them through theirs (declaring them changes
+        no fingerprint); :class:`~tasks.pipeline.Pipeline` checks that they declare the arrays."""
+        return {}
+
+    def sources(self, pipeline: Pipeline) -> frozenset[str]:
+        """The stages whose arrays and tables this one reads: ``upstream`` and :meth:`reads`."""
+        return frozenset((*self.upstream, *self.reads(pipeline)))
+
     def require(self, pipeline: Pipeline, source: str, arrays: tuple[str, ...]) -> None:
         """Raise ValueError unless stage ``source`` of ``pipeline`` declares ``arrays``."""
         declared = {a.name for a in pipeline[source].arrays}
@@ -186,8 +199,9 @@ class StageContext:
 
     @cached_property
     def frames(self):
-        """The frame table of this sequence (pyarrow Table), written by the ``ingest`` stage."""
-        return self.table("ingest", "frames")
+        """The frame table of this sequence (pyarrow Table), written by the ``ingest`` stage (every
+        stage may read it: every pipeline starts with ingest)."""
+        return self.store.read_table(self.sequence, self.pipeline["ingest"].table("frames"))
 
     def manifest(self, stage: str) -> Manifest:
         """The manifest of another stage of this sequence. Raises StoreError when it has none."""
@@ -196,13 +210,34 @@ class StageContext:
             raise StoreError(self.store.where(self.sequence, stage), f"stage {stage!r} has not run")
         return m
 
+    def _declared(self, stage: str) -> None:
+        """Raise StoreError unless this stage declares that it reads ``stage`` (:meth:`Stage.sources`)."""
+        if stage != self.stage and stage not in self.pipeline[self.stage].sources(self.pipeline):
+            raise StoreError(
+                self.store.where(self.sequence, self.stage),
+                f"stage {self.stage!r} reads stage {stage!r} without declaring it (upstream or reads())",
+            )
+
     def arrays(self, stage: str, read_only: bool = True) -> StageArrays:
-        """The zarr arrays of a stage of this sequence, by its declaration in the pipeline."""
+        """The zarr arrays of a stage of this sequence, by its declaration in the pipeline (a stage
+        it declares it reads, or itself)."""
+        self._declared(stage)
         return self.store.arrays(self.sequence, self.pipeline[stage].contract, read_only)
 
     def table(self, stage: str, name: str):
-        """One of a stage's tables, this sequence's partition (pyarrow Table)."""
+        """One of a stage's tables, this sequence's partition (pyarrow Table); as :meth:`arrays`."""
+        self._declared(stage)
         return self.store.read_table(self.sequence, self.pipeline[stage].table(name))
+
+    def frame_values(self) -> FrameValues:
+        """Per-frame values of this stage's volume sources (:class:`tasks.frames.FrameValues`), the
+        mapping found by declaration upstream of this stage (which must declare it reads it)."""
+        from tasks.frames import FrameValues
+
+        values = FrameValues.near(self.store, self.pipeline, self.sequence, self.stage)
+        if values.mapping is not None:
+            self._declared(values.mapping)
+        return values
 
     @cached_property
     def label_map(self) -> LabelMap:

@@ -42,9 +42,9 @@ class DplsStage(Stage):
 
     @staticmethod
     def checkpoint(ctx: StageContext):
-        from dsnet_core.checkpoints import resolve_dpls_checkpoint
+        from dsnet_core.checkpoints import DPLS
 
-        return resolve_dpls_checkpoint(ctx.config.checkpoint)
+        return DPLS.resolve(ctx.config.checkpoint)
 
     def inputs(self, ctx: StageContext) -> str:
         from dsnet_core.checkpoints import checkpoint_digest

@@ -38,6 +38,7 @@ INSTANCES = TableSpec(
         ("points", "n_points"),
         ("item", "index"),
         ("confidence", "confidence"),
+        ("agreement", "agreement"),
     ),
 )
 ROW_FIELDS = ("id", "class_id", "n_points", "agreement", "confidence", "centroid", "box_min", "box_max")
@@ -69,6 +70,10 @@ class FuseStage(Stage):
         from tasks.shift import MODEL_ARRAYS
 
         self.require(pipeline, self.source, MODEL_ARRAYS)
+
+    def reads(self, pipeline) -> dict[str, tuple[str, ...]]:
+        """The volumes' points, of align (upstream of its source)."""
+        return {"align": ("points",)}
 
     def plan(self, ctx: StageContext) -> Plan:
         infer = ctx.manifest(self.source)

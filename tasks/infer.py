@@ -169,9 +169,9 @@ class InferStage(Stage):
     @staticmethod
     def checkpoint(ctx: StageContext):
         """The checkpoint folder: the configured one, else the bundled model for align's k."""
-        from dsnet_core.checkpoints import resolve_checkpoint
+        from dsnet_core.checkpoints import DSNET
 
-        return resolve_checkpoint(ctx.config.checkpoint, volume_scans(ctx))
+        return DSNET.resolve(ctx.config.checkpoint, volume_scans(ctx))
 
     def inputs(self, ctx: StageContext) -> str:
         from dsnet_core.checkpoints import checkpoint_digest

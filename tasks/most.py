@@ -92,9 +92,9 @@ class MostStage(Stage):
 
     @staticmethod
     def checkpoint(ctx: StageContext):
-        from dsnet_core.checkpoints import resolve_most_checkpoint
+        from dsnet_core.checkpoints import MOST
 
-        return resolve_most_checkpoint(ctx.config.checkpoint, ctx.config.scans)
+        return MOST.resolve(ctx.config.checkpoint, ctx.config.scans)
 
     def inputs(self, ctx: StageContext) -> str:
         from dsnet_core.checkpoints import checkpoint_digest
@@ -102,8 +102,8 @@ class MostStage(Stage):
         return "checkpoint:" + checkpoint_digest(self.checkpoint(ctx))
 
     def plan(self, ctx: StageContext) -> Plan:
+        from dsnet_core.checkpoints import MOST
         from dsnet_core.errors import ConfigError
-        from dsnet_core.most.card import read_most_card
 
         _check_device(ctx.config.device)
         if volume_scans(ctx) != 1:
@@ -113,7 +113,7 @@ class MostStage(Stage):
             )
         align = ctx.manifest("align")
         path = self.checkpoint(ctx).resolve()
-        card = read_most_card(path)
+        card = MOST.read_card(path)
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),

@@ -45,6 +45,14 @@ class Pipeline:
             seen.append(stage.name)
         for stage in self.stages:
             stage.check_sources(self)
+            for source, arrays in stage.reads(self).items():
+                covered = {n for u in stage.upstream for n in (u, *self.upstream_closure(u))}
+                if source not in covered:
+                    raise ValueError(
+                        f"pipeline {self.name!r}: stage {stage.name!r} reads {source!r}, which is not "
+                        "upstream of what it reads (its fingerprint would not cover it)"
+                    )
+                stage.require(self, source, arrays)
         if self.labels not in seen:
             raise ValueError(f"pipeline {self.name!r}: its labels stage {self.labels!r} is not one of {seen}")
         if FRAME_LABEL not in self[self.labels].arrays:

@@ -73,9 +73,9 @@ class PriorStage(Stage):
 
     @staticmethod
     def checkpoint(ctx: StageContext):
-        from dsnet_core.checkpoints import resolve_checkpoint
+        from dsnet_core.checkpoints import DSNET
 
-        return resolve_checkpoint(ctx.config.checkpoint, 1)
+        return DSNET.resolve(ctx.config.checkpoint, 1)
 
     def inputs(self, ctx: StageContext) -> str:
         from dsnet_core.io.prior import find_prior
@@ -119,24 +119,18 @@ class PriorStage(Stage):
         from dsnet_core.io.prior import prior_classes
 
         frame_prior = self._frame_source(ctx)
-        align = ctx.arrays("align")
-        cache: dict[int, np.ndarray] = {}
+        values = ctx.frame_values()
+        cache: dict[int, np.ndarray] = {}  # the frames a volume shares with the next
+
+        def prior_of(f: int) -> np.ndarray:
+            if f not in cache:
+                cache[f] = frame_prior(f)
+            return cache[f]
+
         for item in items:
-            vol = align.read_item(item, ["source_frame", "source_index"])
-            frames = np.unique(vol["source_frame"])
-            for f in list(cache):
-                if f not in frames:
-                    del cache[f]
-            probs = None
-            for f in frames.tolist():
-                if f not in cache:
-                    cache[f] = frame_prior(f)
-                sel = vol["source_frame"] == f
-                p = cache[f]
-                if probs is None:
-                    probs = np.zeros((vol["source_frame"].shape[0], p.shape[1]), np.float32)
-                probs[sel] = p[vol["source_index"][sel]]
-            n = int(vol["source_frame"].shape[0])
+            for f in set(cache) - set(values.windows[item]):
+                del cache[f]
+            probs, n = values.gather(item, prior_of, np.float32)
             if probs is None:
                 probs = np.zeros((0, len(ctx.plan[CLASS_MAP]["class_names"])), np.float32)
             sem = prior_classes(probs)

@@ -34,15 +34,10 @@ from pydantic import Field
 
 from storage.contract import TableSpec
 from storage.errors import StoreError
-from tasks.align import AlignStage
 from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
-from tasks.infer import InferStage
+from tasks.confidence import PROBS
+from tasks.frames import SOURCE
 from tasks.track_ids import track_generations
-
-PROBS = next(a for a in InferStage.arrays if a.name == "probs")
-"""The declaration of per-point class probabilities (uint8 ``q / 255``, per volume)."""
-SOURCE = tuple(a for a in AlignStage.arrays if a.name in ("source_frame", "source_index"))
-"""The declarations that map a volume's points to their frames."""
 
 
 class RefineConfig(StageConfig):
@@ -136,21 +131,14 @@ TRACKS = TableSpec(
 )  # fmt: skip
 
 
-def _nearest(ctx: StageContext, name: str, wanted: tuple, item: str) -> str | None:
-    """The nearest stage upstream of ``name`` whose item is ``item`` and which declares ``wanted``."""
-    for stage in reversed(ctx.pipeline.upstream_closure(name)):
-        spec = ctx.pipeline[stage]
-        if spec.item == item and all(a in spec.arrays for a in wanted):
-            return stage
-    return None
-
-
 class FrameLoader:
-    """Reads one frame of a sequence as :class:`~dsnet_core.refine.FrameInput` (caching the last volume
-    of probabilities: a block reads frames in order)."""
+    """Reads one frame of a sequence as :class:`~dsnet_core.refine.FrameInput`: the labels of stage
+    ``labels``, and the class probabilities of stage ``probs`` per frame through the mapping stage
+    ``align`` (:class:`tasks.frames.FrameValues`), when both are given."""
 
     def __init__(self, ctx: StageContext, labels: str, probs: str | None, align: str | None) -> None:
         from dsnet_core.refine.frame import decode_labels
+        from tasks.frames import FrameValues
 
         self.ctx, self.decode, self.label_map = ctx, decode_labels, ctx.label_map
         self.labels = ctx.arrays(labels)
@@ -159,17 +147,11 @@ class FrameLoader:
         t = ctx.frames.to_pydict()
         self.pose = dict(zip(t["index"], t["pose"], strict=True))
         self.time = dict(zip(t["index"], t["timestamp"], strict=True))
-        self.probs = self.align = None
-        self.owner: dict[int, int] = {}
-        self.single: set[int] = set()  # volumes of one frame: its points in its own order
+        self.probs = self.values = None
         if probs is not None and align is not None:
-            self.probs, self.align = ctx.arrays(probs), ctx.arrays(align)
-            for v, w in enumerate(ctx.manifest(align).plan["windows"]):
-                if len(w) == 1:
-                    self.single.add(v)
-                for f in w:
-                    self.owner.setdefault(int(f), v)
-        self._volume: tuple[int, dict] | None = None
+            ctx._declared(align)
+            self.probs = ctx.arrays(probs)
+            self.values = FrameValues(ctx.store, ctx.pipeline, ctx.sequence, align)
 
     def __call__(self, index: int):
         from dsnet_core.refine import FrameInput
@@ -197,24 +179,29 @@ class FrameLoader:
         )
 
     def _probs(self, index: int, n: int) -> np.ndarray | None:
-        if self.probs is None or index not in self.owner:
+        """uint8 ``(n, C)`` probabilities of the frame's points (read-only), or None."""
+        if self.probs is None:
             return None
-        v = self.owner[index]
-        if v in self.single:  # a volume of this frame alone holds its points in order (k = 1)
-            probs = self.probs.read_item(v, ["probs"])["probs"]
-            if probs.shape[0] == n:
-                probs.flags.writeable = False
-                return probs
-        if self._volume is None or self._volume[0] != v:
-            data = self.align.read_item(v, ["source_frame", "source_index"])
-            data["probs"] = self.probs.read_item(v, ["probs"])["probs"]
-            self._volume = (v, data)
-        data = self._volume[1]
-        sel = data["source_frame"] == index
-        probs = data["probs"]
-        out = np.zeros((n, probs.shape[1]), np.uint8)
-        out[data["source_index"][sel]] = probs[sel]
-        return out
+        found = self.values.frame(self.probs, index, ["probs"])
+        if found is None:
+            return None
+        probs = found["probs"]
+        if probs.shape[0] != n:
+            raise StoreError(
+                self.probs.where, f"frame {index}: {probs.shape[0]} probabilities for {n} labels"
+            )
+        probs.flags.writeable = False
+        return probs
+
+
+def probability_sources(pipeline, name: str) -> tuple[str | None, str | None]:
+    """(the nearest volume stage upstream of ``name`` declaring :data:`PROBS`, the nearest one
+    declaring :data:`SOURCE`), or (None, None) unless both exist."""
+    from tasks.frames import nearest
+
+    probs = nearest(pipeline, name, (PROBS,), "volume")
+    align = nearest(pipeline, name, SOURCE, "volume")
+    return (probs, align) if probs is not None and align is not None else (None, None)
 
 
 class RefineStage(Stage):
@@ -245,10 +232,12 @@ class RefineStage(Stage):
         except PackageNotFoundError:
             return "pypatchworkpp:missing"
 
-    def _sources(self, ctx: StageContext) -> tuple[str | None, str | None]:
-        probs = _nearest(ctx, self.name, (PROBS,), "volume")
-        align = _nearest(ctx, self.name, SOURCE, "volume")
-        return (probs, align) if probs is not None and align is not None else (None, None)
+    def reads(self, pipeline) -> dict[str, tuple[str, ...]]:
+        """The class probabilities and the volume-to-frame mapping of :func:`probability_sources`."""
+        probs, align = probability_sources(pipeline, self.name)
+        if probs is None:
+            return {}
+        return {probs: ("probs",), align: tuple(a.name for a in SOURCE)}
 
     def plan(self, ctx: StageContext) -> Plan:
         from dsnet_core.refine import ClassSets, plan_refinement
@@ -262,7 +251,7 @@ class RefineStage(Stage):
         t = ctx.frames.to_pydict()
         done = ctx.arrays(self.labels).done()
         frames = [int(i) for i, s in zip(t["index"], t["status"], strict=True) if s == "ok" and done[int(i)]]
-        probs, align = self._sources(ctx)
+        probs, align = probability_sources(ctx.pipeline, self.name)
         load = FrameLoader(ctx, self.labels, probs, align)
         plan = plan_refinement(
             (load(f) for f in frames),

@@ -110,6 +110,10 @@ class ShiftStage(Stage):
     def check_sources(self, pipeline) -> None:
         self.require(pipeline, self.source, MODEL_ARRAYS)
 
+    def reads(self, pipeline) -> dict[str, tuple[str, ...]]:
+        """The volumes' points, of align (upstream of its source, which reads them too)."""
+        return {"align": ("points",)}
+
     def plan(self, ctx: StageContext) -> Plan:
         infer = ctx.manifest(self.source)
         cfg = effective_clusterer(ctx.config, volume_scans(ctx))

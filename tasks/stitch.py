@@ -91,6 +91,8 @@ TRACKS = TableSpec(
         ("points", "n_points"),
         ("item", "first_frame"),
         ("confidence", "confidence"),
+        ("frames", "frames"),
+        ("link_iou", "min_link_iou"),
     ),
 )
 

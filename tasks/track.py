@@ -113,12 +113,8 @@ class TrackStage(Stage):
             return
         label_map = ctx.label_map
         thing_of = label_map.is_thing()
-        windows = [list(w) for w in ctx.plan["windows"]]
-        owner: dict[int, int] = {}
-        for v, w in enumerate(windows):
-            for f in w:
-                owner.setdefault(int(f), v)
-        order = sorted(owner)
+        values = ctx.frame_values()
+        order = values.frames()
         frames = ctx.frames.to_pydict()
         pose = dict(zip(frames["index"], frames["pose"], strict=True))
         stamp = dict(zip(frames["index"], frames["timestamp"], strict=True))
@@ -140,23 +136,16 @@ class TrackStage(Stage):
         align, instances = ctx.arrays("align"), ctx.arrays(self.source)
         has_detections = any(t.name == DETECTIONS for t in ctx.pipeline[self.source].tables)
         detections = _detections(ctx, self.source) if has_detections else None
-        cached: tuple[int, dict, dict] | None = None
         throttle = StateThrottle()
         warned = False
         for k in range(start, len(order)):
             f = order[k]
-            v = owner[f]
-            if cached is None or cached[0] != v:
-                cached = (
-                    v,
-                    align.read_item(v, ["points", "source_frame", "source_index"]),
-                    instances.read_item(v),
-                )
-            _, vol, found = cached
-            sel = vol["source_frame"] == f
-            xyz = vol["points"][sel, :3]
-            sem = found["sem"][sel].astype(np.int64)
-            inst = found["inst"][sel].astype(np.int64)
+            v = values.owner[f]
+            vol = values.frame(align, f, ["points"])
+            found = values.frame(instances, f, ["sem", "inst"])
+            xyz = vol["points"][:, :3]
+            sem = found["sem"].astype(np.int64)
+            inst = found["inst"].astype(np.int64)
             thing = thing_of[sem]
             ref = refs[v]
             world = None if pose.get(ref) is None else np.asarray(pose[ref], np.float64).reshape(4, 4)
@@ -169,7 +158,7 @@ class TrackStage(Stage):
                 tid = tracker.add_detections(cent, cls, world, time if time is not None else 0.1 * f, vel)
             warned = warn_reuse(ctx.sequence, self.name, tracker.ids, f, warned)
             label = np.zeros(int(frame_points[f]), np.uint32)
-            label[vol["source_index"][sel]] = relabel(label_map, sem, inst, ids, tid, thing)
+            label[: sem.shape[0]] = relabel(label_map, sem, inst, ids, tid, thing)
             _summarise(summary, f, label, tid, cls)
             if f in todo:
                 rows, counts = {}, {}

@@ -94,11 +94,8 @@ def read_card(path: str | Path) -> ModelCard:
     """Read and validate ``CKPT/card.json``."""
     card_path = Path(path) / CARD
     data = card_json(path)
-    if data.get("format") != FORMAT:
-        hint = ""
-        if str(data.get("format", "")).startswith("most-checkpoint"):
-            hint = " — a MOST checkpoint: label with --method most"
-        raise CheckpointError(card_path, f"not a {FORMAT} model card{hint}")
+    if data.get("format") != FORMAT:  # which method's it is: dsnet_core.checkpoints.card_kind
+        raise CheckpointError(card_path, f"not a {FORMAT} model card (format {data.get('format')!r})")
     try:
         card = ModelCard(**data)
     except TypeError as exc:

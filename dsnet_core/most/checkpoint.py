@@ -1,7 +1,7 @@
 """MOST checkpoints: the project's checkpoint folder layout (safetensors weights, a JSON model card
 written last with the weights' sha256) with its own format tag and architecture (``MostConfig``).
 
-Both methods' cards carry ``format``; :func:`checkpoint_method` tells them apart.
+Every card carries ``format``; :func:`dsnet_core.checkpoints.card_kind` tells them apart.
 """
 
 from __future__ import annotations
@@ -25,14 +25,12 @@ from dsnet_core.model.checkpoint import (
     save_tensors,
     sha256_file,
 )
-from dsnet_core.most.card import FORMATS, MOST_FORMAT, checkpoint_method, read_most_card
+from dsnet_core.most.card import MOST_FORMAT, read_most_card
 from dsnet_core.most.config import MostConfig
 from dsnet_core.most.network import MostNet
 
 __all__ = [  # the card's names are re-exported: a checkpoint is its weights and its card
-    "FORMATS",
     "MOST_FORMAT",
-    "checkpoint_method",
     "load_most_checkpoint",
     "read_most_card",
     "save_most_checkpoint",

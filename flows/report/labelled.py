@@ -22,8 +22,10 @@ from dsnet_core.labels import LabelMap
 from flows.report.confidence import ConfidencePass
 from storage.run import RunStore
 from tasks.base import labels_contract
+from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
 from tasks.refine import CHANGES, RefineStage
+from tasks.score import ScoreStage
 from tasks.track_ids import track_generations
 
 
@@ -55,7 +57,7 @@ def summarise(
     out = LabelSummary()
     for seq in sequences:
         labels = _done(store, seq, pipeline.labels)
-        if labels is None or _done(store, seq, "ingest") is None:
+        if labels is None or _done(store, seq, IngestStage.name) is None:
             continue
         _sequence(store, pipeline, seq, labels.fingerprint, label_map, conf, out)
     return out
@@ -70,7 +72,7 @@ def _sequence(
     conf: ConfidencePass,
     out: LabelSummary,
 ) -> None:
-    frames = store.read_table(seq, pipeline["ingest"].table("frames")).to_pydict()
+    frames = store.read_table(seq, pipeline[IngestStage.name].table("frames")).to_pydict()
     arrays = store.arrays(seq, labels_contract(pipeline.labels))
     done = arrays.done()
     lut = label_map.lut(1 << 16, fill=0)
@@ -227,5 +229,5 @@ def _before(after: np.ndarray, transitions: dict[tuple[int, int], int]) -> np.nd
 
 
 def _scored(store: RunStore, seq: str) -> bool:
-    m = _done(store, seq, "score")
+    m = _done(store, seq, ScoreStage.name)
     return m is not None and m.n_items > 0

@@ -30,9 +30,9 @@ from storage.errors import StoreError
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
 from tasks.run_config import RunConfig, read_run
-from tasks.score import ScoreConfig, block_state_name, frame_metrics_spec, make_evaluator
+from tasks.score import ScoreConfig, ScoreStage, block_state_name, frame_metrics_spec, make_evaluator
 
-SCORE = "score"
+SCORE = ScoreStage.name
 
 
 @dataclass

@@ -21,9 +21,9 @@ from tasks.base import labels_contract
 from tasks.pipeline import Pipeline
 from tasks.refine import RefineStage
 from tasks.run_config import RunConfig
-from tasks.score import ScoreConfig, make_evaluator
+from tasks.score import ScoreConfig, ScoreStage, make_evaluator
 
-SCORE = "score"
+SCORE = ScoreStage.name
 
 
 def _finite(v: float) -> float | None:

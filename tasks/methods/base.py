@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 if TYPE_CHECKING:
+    from dsnet_core.checkpoints import Checkpoints
     from tasks.pipeline import Pipeline
 
 Temporal = Literal["auto", "stitch", "track"]
@@ -235,6 +236,10 @@ class Method(ABC):
         data_parallel: whether its trainer runs under torchrun with several processes.
         adaptable: whether ``dsnet adapt`` can self-train its network on unlabelled logs (a network
             with a semantic head and probabilities its infer stage stores; ``docs/adapt.md``).
+        checkpoints: its checkpoints (:class:`dsnet_core.checkpoints.Checkpoints`: the bundled
+            models, resolving one, its card kind); None for a method without a network.
+        homes: the modules besides its own where its name may be written (its trainer, its stages:
+            ``tests/test_layers.py`` reads them from the registry).
     """
 
     name: ClassVar[str]
@@ -245,6 +250,8 @@ class Method(ABC):
     TrainOptions: ClassVar[type[TrainOptions]] = TrainOptions
     data_parallel: ClassVar[bool] = False
     adaptable: ClassVar[bool] = False
+    checkpoints: ClassVar[Checkpoints | None] = None
+    homes: ClassVar[tuple[str, ...]] = ()
 
     # -- labelling -----------------------------------------------------------------------------
     @abstractmethod
@@ -316,9 +323,10 @@ class Method(ABC):
         """The grid bounds of the model the stage configs name (the bundled one when they name
         none), which ingest records; None when there is no model to ask."""
 
-    @abstractmethod
     def bundled_checkpoint(self, scans: int) -> Path | None:
-        """The bundled checkpoint for k = ``scans``, or None when the package has none."""
+        """The bundled checkpoint for k = ``scans`` (its :attr:`checkpoints`'), or None when the
+        package has none."""
+        return None if self.checkpoints is None else self.checkpoints.bundled(scans)
 
     # -- training ------------------------------------------------------------------------------
     @abstractmethod

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import Field
 
+from dsnet_core import checkpoints as ckpt
 from tasks.methods.base import (
     CLUSTERER_HELP,
     INGEST_KEYS,
@@ -76,6 +77,8 @@ class Dpls(Method):
     }
     TrainOptions = DplsTrainOptions
     data_parallel = True
+    checkpoints = ckpt.DPLS
+    homes = ("tasks/dpls.py",)
 
     def pipeline(
         self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
@@ -115,15 +118,8 @@ class Dpls(Method):
         return stages
 
     def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
-        from dsnet_core.model.card import read_card
-
         path = stages.get("dpls", {}).get("checkpoint") or self.bundled_checkpoint(1)
-        return None if path is None else grid_of(read_card(path).config.grid)
-
-    def bundled_checkpoint(self, scans: int) -> Path | None:
-        from dsnet_core.checkpoints import bundled_dpls_checkpoint
-
-        return bundled_dpls_checkpoint()
+        return None if path is None else grid_of(self.checkpoints.read_card(path).config.grid)
 
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
         import torch

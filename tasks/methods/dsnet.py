@@ -5,9 +5,9 @@ stages. Trained semantic → instance head → shifting MLPs (:class:`dsnet_core
 from __future__ import annotations
 
 from collections.abc import Mapping
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from dsnet_core import checkpoints as ckpt
 from tasks.methods.base import (
     CLUSTERER_HELP,
     INGEST_KEYS,
@@ -61,6 +61,8 @@ class Dsnet(Method):
     TrainOptions = DsnetTrainOptions
     data_parallel = True
     adaptable = True
+    checkpoints = ckpt.DSNET
+    homes = ("tasks/methods/dsnet_train.py",)
 
     def pipeline(
         self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
@@ -88,9 +90,10 @@ class Dsnet(Method):
         if settings.checkpoint:
             infer["checkpoint"] = absolute(settings.checkpoint)
         elif settings.equivariant is not None:  # the bundled C_n model, where one is bundled
-            from dsnet_core.checkpoints import bundled_equivariant_checkpoint
+            from dsnet_core.checkpoints import DSNET_EQUIVARIANT
 
-            found = bundled_equivariant_checkpoint(settings.equivariant)
+            kind = DSNET_EQUIVARIANT.get(settings.equivariant)
+            found = None if kind is None else kind.bundled()
             if found is not None:
                 infer["checkpoint"] = str(found)
         if settings.device:
@@ -106,16 +109,9 @@ class Dsnet(Method):
         return stages
 
     def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
-        from dsnet_core.model.card import read_card
-
         infer, align = stages.get("infer", {}), stages.get("align", {})
         path = infer.get("checkpoint") or self.bundled_checkpoint(int(align.get("scans", 1)))
-        return None if path is None else grid_of(read_card(path).config.grid)
-
-    def bundled_checkpoint(self, scans: int) -> Path | None:
-        from dsnet_core.checkpoints import bundled_checkpoint
-
-        return bundled_checkpoint(scans)
+        return None if path is None else grid_of(self.checkpoints.read_card(path).config.grid)
 
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
         assert isinstance(options, DsnetTrainOptions)

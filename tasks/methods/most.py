@@ -5,11 +5,11 @@ membership, learned velocities; always tracked (its frames share no volume to st
 from __future__ import annotations
 
 from collections.abc import Mapping
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import Field
 
+from dsnet_core import checkpoints as ckpt
 from tasks.methods.base import (
     INGEST_KEYS,
     METHOD,
@@ -69,6 +69,8 @@ class Most(Method):
     }
     TrainOptions = MostTrainOptions
     data_parallel = True
+    checkpoints = ckpt.MOST
+    homes = ("tasks/most.py",)
 
     def pipeline(
         self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
@@ -117,19 +119,13 @@ class Most(Method):
         return stages
 
     def model_grid(self, stages: Mapping[str, Mapping[str, Any]]) -> dict[str, list[float]] | None:
-        from dsnet_core.most.card import read_most_card
         from dsnet_core.most.config import MostConfig
 
         most = stages.get("most", {})
         path = most.get("checkpoint") or self.bundled_checkpoint(int(most.get("scans", self.default_scans)))
         if path is None:
             return None
-        return grid_of(MostConfig.from_dict(read_most_card(path).architecture).backbone.grid)
-
-    def bundled_checkpoint(self, scans: int) -> Path | None:
-        from dsnet_core.checkpoints import bundled_most_checkpoint
-
-        return bundled_most_checkpoint(scans)
+        return grid_of(MostConfig.from_dict(self.checkpoints.read_card(path).architecture).backbone.grid)
 
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
         from dataclasses import replace

@@ -109,7 +109,7 @@ def _card_copy(src, dst, change) -> str:
 
 def test_a_card_grid_beyond_the_bound_is_refused_naming_the_card(log, tmp_path):
     """Was: a card whose grid has 1e12 cells labelled (every point a cell of its own)."""
-    from dsnet_core.checkpoints import bundled_checkpoint, bundled_most_checkpoint
+    from dsnet_core.checkpoints import MOST, bundled_checkpoint
 
     def huge(arch):
         arch["grid"]["size"] = [10000, 10000, 10000]
@@ -125,7 +125,7 @@ def test_a_card_grid_beyond_the_bound_is_refused_naming_the_card(log, tmp_path):
     def fine_bev(arch):
         arch["bev"]["cell"] = 1e-4
 
-    card = _card_copy(bundled_most_checkpoint(3), tmp_path / "most", fine_bev)
+    card = _card_copy(MOST.bundled(3), tmp_path / "most", fine_bev)
     line = _refused(["label", str(log), "--run", str(tmp_path / "run"), "--method", "most", "--checkpoint",
                      str(tmp_path / "most")])  # fmt: skip
     assert line.startswith(

@@ -6,23 +6,81 @@ its generated ``dsnet train`` command. Nothing else in the product is touched.""
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pytest
 import torch
 import typer
 from pydantic import Field
 from typer.testing import CliRunner
 
+from dsnet_core.labels import class_map_of, load_label_map
 from dsnet_core.model.checkpoint import ModelCard, save_tensors
 from dsnet_core.train.skeleton import EpochPlan, TrainerSkeleton, prepare_out
+from storage.contract import ArraySpec, TableSpec
+from tasks.base import CLASS_MAP, FRAME_LABEL, ItemResult, Plan, Stage, StageContext
+from tasks.confidence import PROBS
 from tasks.ingest import IngestStage
 from tasks.methods import METHODS, LabelSettings, Method, TrainOptions, get_method, register
 from tasks.pipeline import Pipeline
 from tests.tasks.test_toy_stage import RangeStage
+
+LM = load_label_map("semantic-kitti")
+CAR, ROAD = (int(LM.to_train(np.asarray([raw]))[0]) for raw in (10, 40))
+OBJECTS = TableSpec(
+    "toy_objects",
+    pa.schema([("index", pa.int32()), ("id", pa.int32()), ("class_id", pa.int32()), ("n_points", pa.int64()),
+               ("confidence", pa.float64())]),
+    roles=(("item", "index"), ("id", "id"), ("class_id", "class_id"), ("points", "n_points"),
+           ("confidence", "confidence")),
+)  # fmt: skip
+
+
+class ObjectStage(Stage):
+    """The toy's labels: the nearer half of each frame's points one car (confidence 0.3 + 0.1 ×
+    frame), the rest road; class probabilities 0.6 (car) and 0.9 (road). It declares what the report
+    reads for frame confidence and the review queue: infer's probabilities, ``sem``, ``inst`` and a
+    table with the ``item``, ``id`` and ``confidence`` roles."""
+
+    name = "toy_objects"
+    upstream = ("toy_range",)
+    version = "1"
+    item = "frame"
+    arrays = (FRAME_LABEL, PROBS, ArraySpec("sem", "uint8"), ArraySpec("inst", "int32"))
+    tables = (OBJECTS,)
+
+    def plan(self, ctx: StageContext) -> Plan:
+        n = ctx.frames["n_points"].to_pylist()
+        return Plan(len(n), max(n), meta={CLASS_MAP: class_map_of(LM)}, dims={"classes": LM.num_classes})
+
+    def run_block(self, ctx: StageContext, items: list[int]) -> Iterator[ItemResult]:
+        ranges = ctx.arrays("toy_range")
+        for i in items:
+            r = ranges.read_item(i, ["range"])["range"]
+            near = r < np.median(r)
+            sem = np.where(near, CAR, ROAD).astype(np.uint8)
+            inst = near.astype(np.int32)
+            probs = np.zeros((r.size, LM.num_classes), np.uint8)
+            probs[np.arange(r.size), sem] = np.where(near, 153, 230)  # 0.6, 0.9
+            label = LM.to_raw(sem).astype(np.uint32) | (inst.astype(np.uint32) << 16)
+            row = {
+                "index": i,
+                "id": 1,
+                "class_id": CAR,
+                "n_points": int(near.sum()),
+                "confidence": 0.3 + 0.1 * i,
+            }
+            yield ItemResult(
+                i,
+                arrays={"label": label, "probs": probs, "sem": sem, "inst": inst},
+                n_points=r.size,
+                rows={"toy_objects": [row]},
+                counts={"frames": 1, "points": int(r.size)},
+            )
 
 
 class ToyTrainOptions(TrainOptions):
@@ -75,7 +133,7 @@ class Toy(Method):
     def pipeline(
         self, options: Mapping[str, Any] | None = None, stages: Mapping[str, Mapping[str, Any]] | None = None
     ) -> Pipeline:
-        return Pipeline(self.name, (IngestStage(), RangeStage()), labels="toy_range")
+        return Pipeline(self.name, (IngestStage(), RangeStage(), ObjectStage()), labels="toy_objects")
 
     def stage_configs(self, settings: LabelSettings) -> dict[str, dict[str, Any]]:
         return {"toy_range": {"scale": 2.0}}
@@ -117,11 +175,12 @@ def test_a_toy_method_labels_a_log_and_trains_one_step(toy, prefect_api_url, syn
         LabelSettings(), data=str(synth_log), root=str(tmp_path / "run"), method="toy", sequences=["00"]
     )
     summary = label_dataset(request)
-    assert [r["stage"] for r in summary] == ["ingest", "toy_range"]
+    assert [r["stage"] for r in summary] == ["ingest", "toy_range", "toy_objects"]
     store = RunStore(tmp_path / "run")
     assert store.read_manifest("00", "toy_range").config == {"scale": 2.0}
     out = export_semantickitti(str(tmp_path / "run"), tmp_path / "pred")
     assert out.frames == {"00": 6}
+    _confidence_and_review_queue(store)
 
     app = typer.Typer()
     app.command(name="toy")(method_command(toy))
@@ -135,3 +194,26 @@ def test_a_toy_method_labels_a_log_and_trains_one_step(toy, prefect_api_url, syn
     )
     again = CliRunner().invoke(app, [str(synth_log), "--out", str(tmp_path / "ckpt")])
     assert again.exit_code == 2 and "already holds a checkpoint: pass --resume" in again.output
+
+
+def _confidence_and_review_queue(store) -> None:
+    """The report's frame confidence and review queue, and the dashboard's sections, of a method
+    none of whose stages is DS-Net's: read from what its labels stage declares."""
+    from flows.report.tables import REPORT_TABLES
+    from storage.run import DASHBOARD
+
+    rows = {r["index"]: r for r in store.read_all(REPORT_TABLES["frame_confidence"]).to_pylist()}
+    assert sorted(rows) == list(range(6))
+    for i, r in rows.items():
+        near = int(store.arrays("00", ObjectStage().contract).read_item(i, ["inst"])["inst"].sum())
+        n = r["n_points"]
+        assert r["semantic"] == pytest.approx(((n - near) * 230 + near * 153) / 255 / n, rel=1e-6)
+        assert r["agreement"] == pytest.approx(0.3 + 0.1 * i) and r["stitch"] == 1.0
+        assert r["n_instances"] == 1
+    queue = store.read_all(REPORT_TABLES["review_queue"]).to_pylist()
+    assert [(q["source"], q["item"], q["class"]) for q in queue] == [
+        ("toy_objects/toy_objects", i, "car") for i in range(6)
+    ]
+    page = Path(store.root.path(DASHBOARD)).read_text()
+    assert 'id="s-confidence"' in page and "confidence per frame" in page
+    assert 'id="s-review"' in page and "toy_objects/toy_objects" in page

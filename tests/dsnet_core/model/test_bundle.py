@@ -124,9 +124,9 @@ def test_lost_shift_weights_recorded_by_the_card_are_refused(tmp_path):
 def test_every_bundled_model_verifies_against_its_card():
     """Each folder under data/models loads through its method's loader, which checks the weights'
     sha256 against the card (a DS-Net, D-PLS or MOST checkpoint alike)."""
-    from dsnet_core.checkpoints import bundled_dir, bundled_most_checkpoint
+    from dsnet_core.checkpoints import MOST, bundled_dir, checkpoint_method
     from dsnet_core.model.checkpoint import load_checkpoint
-    from dsnet_core.most.checkpoint import checkpoint_method, load_most_checkpoint
+    from dsnet_core.most.checkpoint import load_most_checkpoint
 
     folders = sorted(p for p in bundled_dir(1).parent.iterdir() if (p / "card.json").is_file())
     assert {p.name for p in folders} >= {"tiny-v2", "tiny-v2-4d", "tiny", "tiny-4d", "dpls", "most"}
@@ -134,4 +134,4 @@ def test_every_bundled_model_verifies_against_its_card():
         loader = load_most_checkpoint if checkpoint_method(path) == "most" else load_checkpoint
         _, card = loader(path)
         assert card.epochs, path
-    assert bundled_most_checkpoint(1) == bundled_most_checkpoint(3)  # one MOST model serves every k
+    assert MOST.bundled(1) == MOST.bundled(3)  # one MOST model serves every k

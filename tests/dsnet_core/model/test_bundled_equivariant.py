@@ -9,7 +9,7 @@ import math
 import numpy as np
 import torch
 
-from dsnet_core.checkpoints import bundled_equivariant_checkpoint
+from dsnet_core.checkpoints import DSNET_EQUIVARIANT
 from dsnet_core.model.checkpoint import load_checkpoint
 from dsnet_core.model.equivariant import rotate_xy
 from tasks.methods import stage_configs
@@ -17,9 +17,9 @@ from tests.dsnet_core.model.rotation_helpers import assert_same_classes, away_fr
 
 
 def test_label_equivariant_4_takes_the_bundled_model_and_it_is_equivariant():
-    path = bundled_equivariant_checkpoint(4)
+    path = DSNET_EQUIVARIANT[4].bundled()
     assert path is not None and path.name == "tiny-v2-eq4"
-    assert bundled_equivariant_checkpoint(8) is None  # none bundled: --equivariant 8 needs --checkpoint
+    assert 8 not in DSNET_EQUIVARIANT  # none bundled: --equivariant 8 needs --checkpoint
     assert stage_configs(scans=1, equivariant=4)["infer"] == {"checkpoint": str(path), "equivariant": 4}
     model, _ = load_checkpoint(path)  # checks the weights' sha256 against the card
     assert model.config.equivariant == 4

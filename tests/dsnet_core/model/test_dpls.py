@@ -39,12 +39,12 @@ def test_the_input_width_includes_the_prior_and_a_copy_starts_as_its_parent():
 def test_the_trained_network_uses_its_prior(synth_log):
     """The bundled D-PLS model: the same points with their cars' prior turned into road move their
     offsets (a random-weight network is too flat to show it); an unchanged prior repeats exactly."""
-    from dsnet_core.checkpoints import bundled_dpls_checkpoint
+    from dsnet_core.checkpoints import DPLS
     from dsnet_core.io.semantickitti import SemanticKittiReader
     from dsnet_core.labels import load_label_map
 
     lm = load_label_map("semantic-kitti")
-    pred = DplsPredictor.from_checkpoint(bundled_dpls_checkpoint())
+    pred = DplsPredictor.from_checkpoint(DPLS.bundled())
     reader = SemanticKittiReader(synth_log)
     ref = reader.frames("00")[0]
     pts = reader.scan(ref)
@@ -69,13 +69,13 @@ def test_a_plain_dsnet_checkpoint_is_not_a_dpls_one(tmp_path):
 def test_the_bundled_dpls_model_derives_from_tiny_and_the_bundle_stays_under_its_cap():
     from pathlib import Path
 
-    from dsnet_core.checkpoints import bundled_dir, bundled_dpls_checkpoint, resolve_dpls_checkpoint
+    from dsnet_core.checkpoints import DPLS, bundled_dir
     from dsnet_core.labels import load_label_map
     from dsnet_core.model.checkpoint import load_checkpoint, read_card
     from dsnet_core.model.dpls import is_dpls
 
-    path = bundled_dpls_checkpoint()
-    assert path is not None and resolve_dpls_checkpoint(None) == path
+    path = DPLS.bundled()
+    assert path is not None and DPLS.resolve(None) == path
     model, card = load_checkpoint(path, expect_label_map=load_label_map("semantic-kitti"))
     assert is_dpls(model.config) and card.epochs["dpls"] >= 1
     models = Path(bundled_dir(1)).parent

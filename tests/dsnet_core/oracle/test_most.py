@@ -42,11 +42,11 @@ def test_oracle_most_with_the_distance_rule(sequence):
 def test_oracle_most_with_the_bundled_pointsegmlp(sequence):
     """The second membership variant: the bundled MOST model's trained PointSegMLP (its features from
     the network on each frame's 3-scan input) cuts the oracle detections' instances out."""
-    from dsnet_core.checkpoints import bundled_most_checkpoint
+    from dsnet_core.checkpoints import MOST
     from dsnet_core.most.checkpoint import load_most_checkpoint
 
     scans, labels, poses = sequence
-    net, _ = load_most_checkpoint(bundled_most_checkpoint(3))
+    net, _ = load_most_checkpoint(MOST.bundled(3))
     res = score(labels, oracle_most(scans, labels, poses, LM, rule="mlp", net=net, k=3))
     # measured (16 VLP-32 frames, seed 1; the model was trained on HDL-64 only): PQ^Th 0.944,
     # LSTQ 0.940 (S_assoc 0.883); on 16 HDL-64 frames 0.969 / 0.969

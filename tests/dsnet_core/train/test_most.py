@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from dsnet_core.checkpoints import checkpoint_method
 from dsnet_core.errors import CheckpointError, ConfigError
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from dsnet_core.labels import load_label_map
@@ -15,7 +16,7 @@ from dsnet_core.model.checkpoint import ModelCard, class_map_of, save_checkpoint
 from dsnet_core.model.cylinder import CylinderGrid
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.presets import PRESETS
-from dsnet_core.most.checkpoint import checkpoint_method, load_most_checkpoint
+from dsnet_core.most.checkpoint import load_most_checkpoint
 from dsnet_core.most.config import BevGrid, MostConfig
 from dsnet_core.train.most import MostTrainConfig, MostTrainer
 from tests.helpers.tiny_log import write_tiny_log

@@ -5,6 +5,7 @@ stages. Trained semantic → instance head → shifting MLPs (:class:`dsnet_core
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dsnet_core import checkpoints as ckpt

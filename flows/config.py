@@ -258,7 +258,7 @@ def _assign(out: dict[str, Any], path: list[str], value: Any, pair: str) -> None
 def _check(out: dict[str, Any], method: Method, name, flags: bool = False, values: bool = False) -> None:
     """Check ``out`` as it stands: the config's own keys, the method's options and every stage's
     config; ``name(key)`` says where a dotted key came from (with ``flags``, a stage setting a flag
-    wrote is named by its flag: :func:`~flows.request.stage_config_line`; with ``values``, a bad
+    wrote is named by its flag: :func:`~tasks.methods.stage_config_line`; with ``values``, a bad
     value is shown after its key).
 
     Raises:
@@ -296,7 +296,7 @@ def _check(out: dict[str, Any], method: Method, name, flags: bool = False, value
             cls.model_validate(config)
         except ValidationError as exc:
             if flags:
-                from flows.request import stage_config_line
+                from tasks.methods import stage_config_line
 
                 raise ConfigError(stage_config_line(stage, exc)) from None
             err = exc.errors()[0]

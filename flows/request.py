@@ -101,6 +101,7 @@ class LabelRequest(BaseModel):
         from pydantic import ValidationError
 
         from storage.fs import RootFS
+        from tasks.methods import stage_config_line
 
         pipeline = self.pipeline()
         RootFS(self.root, self.storage_options).check()  # cheap: before the model card loads torch
@@ -184,34 +185,6 @@ def resolved_location(data: str) -> str:
     from pathlib import Path
 
     return data if "://" in data else str(Path(data).expanduser().resolve())
-
-
-def stage_config_line(stage: str, exc) -> str:
-    """A stage config's pydantic ValidationError as one line naming the command-line option of each
-    setting (``--clusterer 'bogus': not a kind (expected: 'dynamic_shift', ...)``); a setting no
-    option gives is named ``stage.setting``."""
-    from tasks.methods import METHODS
-    from tasks.methods.base import flag
-
-    settings = {name for m in METHODS.values() for name in m.Settings.model_fields}
-    parts = []
-    for err in exc.errors():
-        loc = [str(p) for p in err.get("loc", ())]
-        head = loc[0] if loc else ""
-        name = flag(head) if head in settings else f"stage {stage} setting {head or '?'}"
-        ctx = err.get("ctx") or {}
-        if err.get("type") == "union_tag_invalid":
-            parts.append(
-                f"{name} {ctx.get('tag')!r}: not a kind it takes (expected: {ctx.get('expected_tags')})"
-            )
-        elif err.get("type") == "union_tag_not_found":
-            parts.append(f"{name}: a JSON config needs a {ctx.get('discriminator', 'kind')} field")
-        else:
-            inner = ".".join(loc[1:])
-            shown = err.get("input")
-            value = "" if isinstance(shown, dict | list) or shown is None else f" {shown!r}"
-            parts.append(f"{name}{': ' + inner if inner else ''}{value}: {err.get('msg', 'invalid')}")
-    return "; ".join(parts)
 
 
 def parse_reader_options(pairs: list[str] | None, **named: Any) -> dict[str, Any]:

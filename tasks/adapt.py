@@ -201,7 +201,7 @@ def _check_teacher_stages(method, settings: LabelSettings, parent: Path) -> None
     """
     from pydantic import ValidationError
 
-    from tasks.methods.base import flag
+    from tasks.methods import stage_config_line
 
     stages = method.stage_settings(settings.model_copy(update={"checkpoint": str(parent), "refine": True}))
     pipeline = method.pipeline(method.options(settings), stages)
@@ -209,16 +209,7 @@ def _check_teacher_stages(method, settings: LabelSettings, parent: Path) -> None
         try:
             pipeline[name].Config.model_validate(config)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            head = str(err["loc"][0]) if err.get("loc") else name
-            ctx = err.get("ctx") or {}
-            what = (
-                f"{ctx.get('tag')!r}: not a kind it takes (expected: {ctx.get('expected_tags')})"
-                if err.get("type") == "union_tag_invalid"
-                else f"{err.get('msg', 'invalid')}"
-            )
-            option = flag(head) if head in LabelSettings.model_fields else f"stage {name} setting {head}"
-            raise ValueError(f"{option} {what}") from None
+            raise ValueError(stage_config_line(name, exc)) from None
 
 
 def _check_resumed_logs(options: AdaptOptions, logs: list, method: str) -> None:

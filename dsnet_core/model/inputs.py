@@ -30,11 +30,14 @@ point of a constant scan takes), teaching the network not to lean on it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from dsnet_core.errors import ConfigError, DataFormatError
+
+if TYPE_CHECKING:
+    import torch
 
 REMISSION_MODES = ("raw", "none", "rank")
 _REMISSION_TOKENS = {"remission": "raw", "remission-rank": "rank"}
@@ -114,6 +117,8 @@ def rank_normalise(values: torch.Tensor) -> torch.Tensor:
     Returns:
         float32 ``(N,)`` on the same device.
     """
+    import torch
+
     n = values.numel()
     if n <= 1:
         return torch.full_like(values, 0.5, dtype=torch.float32)
@@ -140,6 +145,8 @@ def build_inputs(
         modified; with the default spec and no dropout they are returned as they are (their
         first four columns).
     """
+    import torch
+
     if spec.is_raw and not (training and dropout > 0):
         return [c if c.shape[1] == 4 else c[:, :4] for c in clouds]
     from dsnet_core.model.ground_height import height_above_ground

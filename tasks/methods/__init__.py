@@ -25,7 +25,16 @@ METHODS: dict[str, Method] = {m.name: m for m in (DSNET, MOST, DPLS)}
 """Every method by name, in the order help texts list them."""
 DEFAULT_METHOD = DSNET.name
 
-__all__ = ["DEFAULT_METHOD", "METHODS", "LabelSettings", "Method", "TrainOptions", "get_method", "register"]
+__all__ = [
+    "DEFAULT_METHOD",
+    "METHODS",
+    "LabelSettings",
+    "Method",
+    "TrainOptions",
+    "get_method",
+    "register",
+    "stage_config_line",
+]
 
 
 def get_method(name: str | None = None) -> Method:
@@ -65,3 +74,30 @@ def stage_configs(method: str | None = None, **settings: Any) -> dict[str, dict[
         ValueError, pydantic.ValidationError: an unknown method, a setting it does not take, a bad value.
     """
     return get_method(method).stage_settings(LabelSettings(**settings))
+
+
+def stage_config_line(stage: str, exc) -> str:
+    """A stage config's pydantic ValidationError as one line naming the command-line option of each
+    setting (``--clusterer 'bogus': not a kind (expected: 'dynamic_shift', ...)``); a setting no
+    option gives is named ``stage.setting``."""
+    from tasks.methods.base import flag
+
+    settings = {name for m in METHODS.values() for name in m.Settings.model_fields}
+    parts = []
+    for err in exc.errors():
+        loc = [str(p) for p in err.get("loc", ())]
+        head = loc[0] if loc else ""
+        name = flag(head) if head in settings else f"stage {stage} setting {head or '?'}"
+        ctx = err.get("ctx") or {}
+        if err.get("type") == "union_tag_invalid":
+            parts.append(
+                f"{name} {ctx.get('tag')!r}: not a kind it takes (expected: {ctx.get('expected_tags')})"
+            )
+        elif err.get("type") == "union_tag_not_found":
+            parts.append(f"{name}: a JSON config needs a {ctx.get('discriminator', 'kind')} field")
+        else:
+            inner = ".".join(loc[1:])
+            shown = err.get("input")
+            value = "" if isinstance(shown, dict | list) or shown is None else f" {shown!r}"
+            parts.append(f"{name}{': ' + inner if inner else ''}{value}: {err.get('msg', 'invalid')}")
+    return "; ".join(parts)

@@ -470,16 +470,6 @@ class StageArrays:
         except Exception as exc:
             raise self._undecodable("done", exc) from exc
 
-    def done_items(self, items) -> np.ndarray:
-        """bool flags of the given items (reads only their chunks)."""
-        idx = np.asarray(list(items), dtype=np.int64)
-        if idx.size == 0:
-            return np.zeros(0, bool)
-        try:
-            return self._arrays["done"].get_orthogonal_selection((idx,)).astype(bool)
-        except Exception as exc:
-            raise self._undecodable("done", exc) from exc
-
     def n_points(self) -> np.ndarray:
         try:
             return self._arrays["n_points"][:]

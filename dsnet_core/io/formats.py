@@ -68,10 +68,6 @@ def register(fmt: LogFormat) -> LogFormat:
     return fmt
 
 
-def format_names() -> list[str]:
-    return list(FORMATS)
-
-
 def detect_format(root: str | Path) -> str:
     """The name of the first registered format that accepts ``root``.
 

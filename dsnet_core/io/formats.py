@@ -54,10 +54,6 @@ class LogFormat:
         specs = tuple(o if isinstance(o, ReaderOption) else ReaderOption(str(o)) for o in self.options)
         object.__setattr__(self, "options", specs)
 
-    @property
-    def option_names(self) -> tuple[str, ...]:
-        return tuple(o.name for o in self.options)
-
 
 FORMATS: dict[str, LogFormat] = {}
 

@@ -17,7 +17,7 @@ from storage.fs import RootFS
 from storage.locks import LockSet, Owner
 from storage.manifest import BlockFragment, Manifest, fingerprint
 from storage.run import RunStore
-from storage.tables import read_partition, read_table, to_table, write_partition
+from storage.tables import read_partition, read_table, to_table
 
 # the store knows no stage: these tests declare their own arrays and tables, as a stage does
 FRAMES = TableSpec(
@@ -92,8 +92,8 @@ def test_parquet_partition_is_string_and_atomic(tmp_path):
          "pose": eye, "timestamp": 0.0, "checksum": "c", "has_labels": False, "status": "ok", "reason": None},
     ]  # fmt: skip
     table = to_table(FRAMES, rows)
-    write_partition(root, FRAMES, {"sequence": "07"}, table)
-    write_partition(root, FRAMES, {"sequence": "10"}, table)
+    RunStore(tmp_path).write_table("07", FRAMES, rows)
+    RunStore(tmp_path).write_table("10", FRAMES, rows)
     # a crashed writer's temporary file is not taken for data
     (tmp_path / "tables/frames/sequence=07/.part-0.parquet.dead.tmp").write_bytes(b"garbage")
     whole = read_table(root, FRAMES)
@@ -576,7 +576,7 @@ def test_a_flipped_bit_in_a_done_flag_is_damage_a_run_sees_before_it_skips(tmp_p
 
 def test_a_partitioned_table_without_partitions_reads_empty_with_its_columns(tmp_path):
     root = RootFS(str(tmp_path))
-    write_partition(root, FRAMES, {"sequence": "00"}, to_table(FRAMES, [{"index": 0}]))
+    RunStore(tmp_path).write_table("00", FRAMES, [{"index": 0}])
     (tmp_path / "tables" / FRAMES.name / "sequence=00" / "part-0.parquet").unlink()
     table = read_table(root, FRAMES)  # every sequence of the run failed: no partition left
     assert table.num_rows == 0

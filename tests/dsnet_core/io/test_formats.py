@@ -177,7 +177,7 @@ def test_every_declared_option_is_a_keyword_of_its_reader():
     }
     for name, fmt in FORMATS.items():
         params = set(inspect.signature(readers[name]).parameters) - {"root"}
-        assert set(fmt.option_names) == params, name
+        assert {o.name for o in fmt.options} == params, name
     assert SCAN_SUFFIXES == pointfiles.SUFFIXES
 
 

@@ -54,17 +54,18 @@ GPU_PYVER ?= 3.12
 GPU_WHEELS ?= gpu-wheels
 DEVICE ?= cuda
 gpu-wheels:
-	$(PYTHON) bench/gpu_wheels.py download --dest $(GPU_WHEELS) --python-version $(GPU_PYVER)
+	$(PYTHON) gpu/gpu_wheels.py download --dest $(GPU_WHEELS) --python-version $(GPU_PYVER)
 
 gpu-check:
-	$(GPU_PYTHON) bench/gpu_check.py --device $(DEVICE) --wheels $(GPU_WHEELS) $(ARGS)
+	$(GPU_PYTHON) gpu/gpu_check.py --device $(DEVICE) --wheels $(GPU_WHEELS) $(ARGS)
 
 gpu-train:
 	@test -n "$(OUT)" || { echo "usage: make gpu-train OUT=DIR (a new folder, or one to resume)"; exit 2; }
-	$(GPU_PYTHON) bench/gpu_train.py --out $(OUT) --device $(DEVICE) --wheels $(GPU_WHEELS) $(ARGS)
+	$(GPU_PYTHON) gpu/gpu_train.py --out $(OUT) --device $(DEVICE) --wheels $(GPU_WHEELS) $(ARGS)
 
+# every benchmark; gpu/bench_gpu.py last (without CUDA it says so in one line and skips)
 bench: $(STAMP)
-	for f in bench/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
+	for f in bench/bench_*.py gpu/bench_gpu.py; do echo "== $$f"; $(PY) $$f || exit 1; done
 
 lint: $(STAMP)
 	$(PY) -m ruff check .

@@ -32,6 +32,7 @@ import os
 import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -227,7 +228,7 @@ def reference(data: Path, out: Path, parent: Path, args) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     ap.add_argument("--targets", default="styles,sensors,physics,validation")
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--rounds", type=int, default=1)
@@ -235,6 +236,7 @@ def main() -> None:
     ap.add_argument("--adapt-args", default="", help="more dsnet adapt options, e.g. '--keep 0.3'")
     ap.add_argument("--reference", action="store_true", help="also fine-tune on A's ground truth")
     args = ap.parse_args()
+    args.out = args.out or Path(tempfile.mkdtemp(prefix="bench-adapt-"))
     from dsnet_core.checkpoints import bundled_checkpoint
 
     parent = bundled_checkpoint(1)

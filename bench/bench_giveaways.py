@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -233,7 +234,7 @@ def tables(objects: list[dict], cells: list[dict]) -> tuple[dict, str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     ap.add_argument("--styles", default="residential,arterial,downtown,country")
     ap.add_argument("--sensor", default="hdl64")
     ap.add_argument("--variety", default="base", help="the generator's variety (base | wide)")
@@ -241,6 +242,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--seed", type=int, default=707)
     args = ap.parse_args()
+    args.out = args.out or Path(tempfile.mkdtemp(prefix="bench-giveaways-"))
     from dsnet_core.synth import SynthConfig, generate_log
 
     log = args.out / f"log-{args.variety}"

@@ -31,6 +31,7 @@ import os
 import resource
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -290,7 +291,12 @@ def _finite(x):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True, help="folder of the run stores and tables")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="folder of the run stores and tables (default: a new temp folder)",
+    )
     ap.add_argument("--rows", default=",".join(DEFAULT_ROWS), help="comma-separated row keys, or 'list'")
     ap.add_argument("--data", type=Path, default=None, help="SemanticKITTI-layout log with labels and poses")
     ap.add_argument("--sequences", default=None, help="with --data: names; else how many to generate (2)")
@@ -314,6 +320,7 @@ def main() -> None:
     )
     ap.add_argument("--row", default=None, help=argparse.SUPPRESS)  # worker: label one row, print JSON
     args = ap.parse_args()
+    args.out = args.out or Path(tempfile.mkdtemp(prefix="bench-methods-"))
     if args.rows == "list":
         for key, row in ROWS.items():
             print(f"{key:24s} {row.title}")

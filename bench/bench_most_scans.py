@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,8 +34,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scans", default="1,2,3,4,6,10")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     args = ap.parse_args()
+    args.out = args.out or Path(tempfile.mkdtemp(prefix="bench-most-scans-"))
     torch.set_num_threads(1)
     ks = [int(k) for k in args.scans.split(",")]
     log = args.out / "log"

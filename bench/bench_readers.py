@@ -30,7 +30,7 @@ MIN_RATIO = 10.0
 
 def label_points_per_s(log: Path, tmp: Path) -> tuple[float, int]:
     """Points per second of the whole label pipeline (k = 1) on sequence 00, and its point count."""
-    from bench.bench_stages import random_tiny_checkpoint
+    from bench.bench_label import random_tiny_checkpoint
     from storage.run import RunStore
     from tasks.methods import get_pipeline
     from tasks.runner import run_stage_plain

@@ -20,6 +20,7 @@ import argparse
 import json
 import math
 import sys
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -170,12 +171,13 @@ def _finite(x):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default: a new temporary folder)")
     ap.add_argument("--rows", default="dsnet-k1-track,dsnet-k2-stitch", help="row keys, or 'list'")
     ap.add_argument("--cells", default=DEFAULT_CELLS, help="sensor:style:seed:first_sequence, or validation")
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--set", action="append", default=[], help="refine setting KEY=VALUE (JSON value)")
     args = ap.parse_args()
+    args.out = args.out or Path(tempfile.mkdtemp(prefix="bench-refine-"))
     if args.rows == "list":
         for key, row in ROWS.items():
             print(f"{key:18s} {row.title}")

@@ -14,9 +14,10 @@ than blake2b and still catching a truncated, swapped or overwritten chunk: these
 against accidents, not against an adversary).
 The runner keeps it in the item's record and its block's fragment. :meth:`StageArrays.read_item`
 checks what it reads against that record and raises :class:`~storage.errors.DamagedStoreError`
-naming the chunk file when a chunk is missing, cannot be decoded (truncated) or has other content;
-a decode error is reported the same way for items written before records existed (whose missing
-chunks read as zeros, as before: nothing recorded what was there).
+naming the chunk file when a chunk is missing, cannot be decoded (truncated) or has other content.
+The record is written before the ``done`` flag, so in store format 1 every written item has one: an
+item whose flag is set but whose record is missing (or lists no chunks) is damage too, never read
+unchecked.
 
 Per-item I/O bypasses zarr's machinery (:class:`_ChunkCodec`): an item is exactly one chunk of each
 array, so reading or writing it is one file read or atomic write and one zstd (or blosc) call,
@@ -317,13 +318,8 @@ class StageArrays:
             return None
         return self.root.size(posixpath.join(self.rel, self.chunk_rel(name, index)))
 
-    def _get(self, name: str, index: int, recorded: bool = True) -> np.ndarray:
-        """One item's chunk, decoded; a chunk that cannot be decoded is a DamagedStoreError.
-
-        Args:
-            recorded: whether the item has a chunk record (without one, a rerun's check cannot
-                see the damage: the message says to recompute the stage from itself).
-        """
+    def _get(self, name: str, index: int) -> np.ndarray:
+        """One item's chunk, decoded; a chunk that cannot be decoded is a DamagedStoreError."""
         try:
             codec = self._direct.get(name)
             if codec is None:
@@ -334,7 +330,6 @@ class StageArrays:
             raise DamagedStoreError(
                 self.chunk_url(name, index),
                 f"chunk of item {index} cannot be decoded ({size} bytes: {exc})",
-                DamagedStoreError.RERUN if recorded else self._legacy_fix(),
             ) from exc
 
     def check_done_flag(self, index: int) -> str | None:
@@ -346,12 +341,6 @@ class StageArrays:
         except DamagedStoreError as exc:
             return exc.problem
         return None if int(flag) == 1 else f"done flag of item {index} reads {int(flag)}, not 1"
-
-    def _legacy_fix(self) -> str:
-        return (
-            f"it was written without a checksum record, so rerun `dsnet label --from-stage "
-            f"{self.contract.stage}` to recompute it"
-        )
 
     def _damaged(self, name: str, index: int, recorded: dict[str, Any] | None) -> DamagedStoreError:
         size = self._chunk_size(name, index)
@@ -421,36 +410,44 @@ class StageArrays:
         """The valid data of one item, checked against its record.
 
         Raises:
-            DamagedStoreError: a chunk is missing, cannot be decoded, or differs from its record.
+            DamagedStoreError: a chunk is missing, cannot be decoded, or differs from its record; the
+                item is done but its record is missing or lists no chunks.
             StoreError: the item is not done.
         """
         record = self.records(index) if self.records is not None else None
         chunks = (record or {}).get("chunks")
-        recorded = chunks is not None
-        if not self._get("done", index, recorded):
+        if not self._get("done", index):
             if chunks is not None and self._chunk_size("done", index) is None:
                 raise DamagedStoreError(
                     self.chunk_url("done", index), f"done flag of item {index} is missing (item was written)"
                 )
             raise StoreError(self.where, f"item {index} is not done")
-        n = int(self._get("n_points", index, recorded))
+        if chunks is None and self.records is not None:
+            raise self.record_missing(index, record)
+        n = int(self._get("n_points", index))
         if chunks is not None and n != record.get("n_points", n):
             raise self._damaged("n_points", index, None)
         out = {}
         for name in self.names if names is None else names:
             spec = self.contract.array(name)
-            value = self._get(name, index, recorded)
-            if chunks is not None and name in chunks and not _row_matches(value, chunks[name]):
-                raise self._damaged(name, index, chunks[name])
+            value = self._get(name, index)
+            if chunks is not None and (name not in chunks or not _row_matches(value, chunks[name])):
+                raise self._damaged(name, index, chunks.get(name))
             out[name] = value[:n] if spec.per_point else value
         return out
 
+    def record_missing(self, index: int, record: dict[str, Any] | None) -> DamagedStoreError:
+        """The error of a done item without a chunk record (written before its done flag, so the
+        item's files are not what the run wrote)."""
+        what = "lists no chunks" if record is not None else "is missing"
+        return DamagedStoreError(self.chunk_url("done", index), f"item {index} is done but its record {what}")
+
     def files_intact(self, index: int, record: dict[str, Any]) -> bool:
-        """Whether an item's chunk files have the sizes its record says (True for records from
-        before chunk records)."""
-        return all(
-            c.get("size") is None or self._chunk_size(name, index) == c["size"]
-            for name, c in record.get("chunks", {}).items()
+        """Whether an item's chunk files have the sizes its record says (False for a record that
+        lists no chunks: nothing says what was written)."""
+        chunks = record.get("chunks")
+        return chunks is not None and all(
+            c.get("size") is None or self._chunk_size(name, index) == c["size"] for name, c in chunks.items()
         )
 
     def check_not_done(self, index: int) -> None:
@@ -467,16 +464,6 @@ class StageArrays:
         """bool ``(items,)``."""
         try:
             return self._arrays["done"][:].astype(bool)
-        except Exception as exc:
-            raise self._undecodable("done", exc) from exc
-
-    def done_items(self, items) -> np.ndarray:
-        """bool flags of the given items (reads only their chunks)."""
-        idx = np.asarray(list(items), dtype=np.int64)
-        if idx.size == 0:
-            return np.zeros(0, bool)
-        try:
-            return self._arrays["done"].get_orthogonal_selection((idx,)).astype(bool)
         except Exception as exc:
             raise self._undecodable("done", exc) from exc
 

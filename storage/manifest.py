@@ -39,8 +39,8 @@ class Manifest(BaseModel):
 
     ``blocks`` lists the item indices of each block (the unit of work and of resume); a block is
     complete when its fragment with this fingerprint exists. ``tables``: what ``finalize`` wrote
-    of each of the stage's tables for this sequence, ``{table: {"path", "size", "blake2b"}}``
-    (empty in manifests written before it existed: then only the file's footer can be checked).
+    of each of the stage's tables for this sequence, ``{table: {"path", "size", "blake2b"}}`` (a
+    table of the stage without one is damaged: :meth:`storage.run.RunStore.check_stage`).
     """
 
     stage: str
@@ -68,8 +68,9 @@ class BlockFragment(BaseModel):
     """What one block task leaves behind: written after all its items' arrays and ``done`` flags.
 
     ``records``: each item's record as :meth:`storage.arrays.StageArrays.write_item` returned it
-    (``n_points``, and per array the stored chunk's size and digest), by item index; empty for
-    table-only stages and in fragments written before records existed.
+    (``n_points``, and per array the stored chunk's size and digest), by item index, for every item
+    the block wrote (not its quarantined ones); empty for table-only stages. A done item without
+    one is damaged.
 
     ``rows`` (the block's table rows) are stored beside the fragment in ``NNNNN.rows``, written
     first, and ``rows_bytes`` is that file's size (0: no rows): the fragment file stays small, so

@@ -314,7 +314,9 @@ class RunStore:
             raise StoreError(self.root.url(rel), "block output missing")
         if data is None:
             raise DamagedStoreError(self.root.url(rel), "block output is missing", self._fresh_fix(stage))
-        if record is not None and digest(data) != record["blake2b"]:
+        if record is None:  # written right after the output, before the block's fragment
+            raise DamagedStoreError(self.root.url(rel), "block output has no record", self._fresh_fix(stage))
+        if digest(data) != record["blake2b"]:
             problem = f"block output ({len(data)} bytes) does not match the record written with it"
             raise DamagedStoreError(self.root.url(rel), problem, self._fresh_fix(stage))
         return data
@@ -415,12 +417,12 @@ class RunStore:
 
         Cheap (default): every block fragment is there; every recorded item's chunk files exist
         with their recorded sizes (one listing of the arrays folder), its ``done`` and
-        ``n_points`` chunks exist; every table partition has its recorded size (a manifest from
-        before records: its footer parses). ``full`` also decodes every recorded item and
-        compares digests, and hashes every table partition. Items of fragments written before
-        records existed are checked in ``full`` mode only, for decode errors. ``flags`` (what a
-        run checks before it skips a stage) also decodes every item's 1-byte ``done`` chunk: a
-        flipped bit keeps its size.
+        ``n_points`` chunks exist and its item record is there; an item whose ``done`` chunk exists
+        but which has no record (in its fragment or its own file) is damaged; every table partition
+        has its recorded size (a table without a record in the manifest is damaged). ``full`` also
+        decodes every recorded item and compares digests, and hashes every table partition.
+        ``flags`` (what a run checks before it skips a stage) also decodes every item's 1-byte
+        ``done`` chunk: a flipped bit keeps its size.
         """
         if not full and self._noted(sequence, contract.stage, [t.name for t in contract.tables]):
             full = True  # a reader found damage the cheap check cannot see: look at every byte
@@ -467,12 +469,32 @@ class RunStore:
         except StoreError as exc:
             return [Damage(self.root.url(rel), f"arrays cannot be opened ({exc.problem})", whole=True)]
         sizes = self.root.sizes(rel)
+        items_rel = posixpath.join(self.stage_rel(sequence, contract.stage), "items")
+        item_files = self.root.sizes(items_rel)
         declared = {s.name for s in contract.arrays}  # a reader's contract may declare fewer arrays
         out: list[Damage] = []
         for frag in frags.values():
+            for item in sorted(set(frag.items) - set(frag.records)):
+                if sizes.get(arrays.chunk_rel("done", item)) is not None:  # written, yet not recorded
+                    out.append(
+                        Damage(arrays.chunk_url("done", item), f"item {item} is done but not recorded", item)
+                    )
             for item, record in sorted(frag.records.items()):
                 bad = None
-                chunks = record.get("chunks", {})
+                if record.get("chunks") is None:
+                    out.append(
+                        Damage(
+                            arrays.chunk_url("done", item),
+                            f"item {item} is done but its record lists no chunks",
+                            item,
+                        )
+                    )
+                    continue
+                if f"{item:06d}.json" not in item_files:
+                    where = self.root.url(self.item_record_rel(sequence, contract.stage, item))
+                    out.append(Damage(where, f"record of item {item} is missing", item))
+                    continue
+                chunks = record["chunks"]
                 expected = {name: c.get("size") for name, c in chunks.items() if name in declared}
                 expected["done"] = -1  # must exist
                 if record.get("n_points"):
@@ -506,15 +528,19 @@ class RunStore:
         self, sequence: str, spec: TableSpec, record: dict[str, Any] | None, full: bool
     ) -> list[Damage]:
         rel = posixpath.join(partition_rel(spec, {"sequence": sequence}), PART)
+        if record is None:  # finalize records every table it writes in the manifest
+            return [
+                Damage(self.root.url(rel), "table partition has no record in the manifest", table=spec.name)
+            ]
         return self._check_table_file(rel, spec, record, full)
 
     def _check_table_file(
-        self, rel: str, spec: TableSpec, record: dict[str, Any] | None, full: bool
+        self, rel: str, spec: TableSpec, record: dict[str, Any], full: bool
     ) -> list[Damage]:
-        """One parquet file against its record (size and digest) or, without one, its footer;
-        ``full``: its digest and every page's checksum too."""
+        """One parquet file against its record (size and digest); ``full``: its digest and every
+        page's checksum too."""
         where = self.root.url(rel)
-        if record is not None and not full:
+        if not full:
             size = self.root.size(rel)
             if size == record.get("size"):
                 return []
@@ -527,7 +553,7 @@ class RunStore:
         data = self.root.read_bytes(rel)
         if data is None:
             return [Damage(where, "file is missing", table=spec.name)]
-        if record is not None and digest(data) != record.get("blake2b"):
+        if digest(data) != record.get("blake2b"):
             return [Damage(where, CHANGED, table=spec.name)]
         if not footer_ok(data):
             return [Damage(where, f"parquet file cannot be read ({len(data)} bytes)", table=spec.name)]
@@ -558,7 +584,7 @@ class RunStore:
         record (size and digest: :meth:`check_run_table`)."""
         rel, record = self.run_table_rels(spec)
         data = encode(spec, to_table(spec, rows))
-        self.root.remove(record)  # a file without its record is checked by its footer only
+        self.root.remove(record)  # a file without its record is damage: the report rewrites it
         put_file(self.root, rel, data)
         self.root.write_json(record, {"size": len(data), "blake2b": digest(data)})
         return rel
@@ -572,12 +598,14 @@ class RunStore:
 
     def check_run_table(self, spec: TableSpec, full: bool = False) -> list[Damage]:
         """What is damaged in an unpartitioned (report) table: cheap, its size against its record
-        (no record: its footer parses); ``full``, its digest and every page's checksum."""
+        (no record: damaged); ``full``, its digest and every page's checksum."""
         rel, record_rel = self.run_table_rels(spec)
         try:
             record = self.root.read_json(record_rel)
         except StoreError as exc:
             return [Damage(exc.where, exc.problem, table=spec.name)]
+        if record is None:
+            return [Damage(self.root.url(record_rel), "record of the table is missing", table=spec.name)]
         return self._check_table_file(rel, spec, record, full)
 
     def read_all(self, spec: TableSpec):
@@ -593,9 +621,11 @@ class RunStore:
         if not spec.partition:
             rel, record_rel = self.run_table_rels(spec)
             record, data = self.root.read_json(record_rel), self.root.read_bytes(rel)
-            if record is not None and (data is None or digest(data) != record.get("blake2b")):
+            if record is None or data is None or digest(data) != record.get("blake2b"):
                 problem = (
-                    "file is missing"
+                    "record of the table is missing"
+                    if record is None
+                    else "file is missing"
                     if data is None
                     else "file does not match the checksum recorded when it was written"
                 )

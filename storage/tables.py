@@ -53,13 +53,6 @@ def encode(spec: TableSpec, table: pa.Table) -> bytes:
     return buf.getvalue()
 
 
-def write_partition(root: RootFS, spec: TableSpec, partition: dict[str, str], table: pa.Table) -> str:
-    """Write one partition file atomically. Returns its relative path."""
-    rel = posixpath.join(partition_rel(spec, partition), PART)
-    put_file(root, rel, encode(spec, table))
-    return rel
-
-
 def put_file(root: RootFS, rel: str, data: bytes) -> None:
     """Put a parquet file in place atomically (a hidden temporary name, then a rename)."""
     tmp = root.temp_name(rel)

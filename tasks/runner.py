@@ -261,8 +261,7 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
                 and arrays.files_intact(item, record)
             ):
                 add(record["rows"], record["counts"])
-                if "chunks" in record:
-                    records[item] = {"n_points": record["n_points"], "chunks": record["chunks"]}
+                records[item] = {"n_points": record["n_points"], "chunks": record["chunks"]}
             else:
                 kept.append(item)
         todo = kept

@@ -54,10 +54,6 @@ class LogFormat:
         specs = tuple(o if isinstance(o, ReaderOption) else ReaderOption(str(o)) for o in self.options)
         object.__setattr__(self, "options", specs)
 
-    @property
-    def option_names(self) -> tuple[str, ...]:
-        return tuple(o.name for o in self.options)
-
 
 FORMATS: dict[str, LogFormat] = {}
 
@@ -66,10 +62,6 @@ def register(fmt: LogFormat) -> LogFormat:
     """Add (or replace) a format in the registry."""
     FORMATS[fmt.name] = fmt
     return fmt
-
-
-def format_names() -> list[str]:
-    return list(FORMATS)
 
 
 def detect_format(root: str | Path) -> str:

@@ -159,11 +159,6 @@ def columns(level: Literal["run", "class", "frame"] = "run") -> list[Column]:
     return [c for m in METRICS.values() for c in getattr(m, attr)]
 
 
-def brief_keys() -> list[str]:
-    """The keys of the few numbers shown where little fits (``Column.brief``)."""
-    return [c.key for c in columns() if c.brief]
-
-
 def registry_digest() -> str:
     """Names and keys of the registered metrics (a stage fingerprint input: a new metric rescores)."""
     return ";".join(

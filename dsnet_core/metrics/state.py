@@ -21,11 +21,6 @@ from dsnet_core.labels import LabelMap
 from .evaluator import PanopticEvaluator
 
 
-def evaluator_state(ev: PanopticEvaluator) -> dict[str, np.ndarray]:
-    """The accumulator state of ``ev`` as named arrays (rows excluded): :meth:`PanopticEvaluator.state`."""
-    return ev.state()
-
-
 def restore_evaluator(label_map: LabelMap, state: dict[str, np.ndarray]) -> PanopticEvaluator:
     """An evaluator of ``label_map`` holding ``state`` (settings from the state), ready to merge.
 

@@ -11,7 +11,6 @@ switches exactly that often.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,17 +73,3 @@ class SwitchCounter:
     def tubes(self) -> int:
         """Ground-truth tubes matched at least once."""
         return len(self._last)
-
-
-def count_switches(
-    gts: Iterable[np.ndarray],
-    preds: Iterable[np.ndarray],
-    label_map: LabelMap,
-    sequence: str = "",
-    min_points: int = 50,
-) -> SwitchCounter:
-    """:class:`SwitchCounter` over one sequence's frames (ground truth and prediction per frame)."""
-    counter = SwitchCounter(label_map, min_points=min_points)
-    for gt, pred in zip(gts, preds, strict=True):
-        counter.add(gt, pred, sequence)
-    return counter

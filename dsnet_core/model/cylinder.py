@@ -42,19 +42,6 @@ class Voxelized:
     point_to_voxel: torch.Tensor
     batch_size: int
 
-    def voxel_to_points(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """CSR map from voxels to points.
-
-        Returns:
-            order: int64 ``(N,)`` point indices grouped by voxel.
-            offsets: int64 ``(M + 1,)``; voxel ``v`` owns ``order[offsets[v]:offsets[v + 1]]``.
-        """
-        order = torch.argsort(self.point_to_voxel, stable=True)
-        counts = torch.bincount(self.point_to_voxel, minlength=self.coords.shape[0])
-        offsets = torch.zeros(counts.numel() + 1, dtype=torch.int64, device=counts.device)
-        offsets[1:] = torch.cumsum(counts, 0)
-        return order, offsets
-
 
 def cylinder_features(points: torch.Tensor, grid: CylinderGrid) -> tuple[torch.Tensor, torch.Tensor]:
     """Cells and the 9 input features of one cloud (and any extra channels it carries).

@@ -220,17 +220,6 @@ class Predictor:
         if buf:
             yield from self.predict_stored(buf, keep)
 
-    def predict_iter(self, clouds: Iterable[np.ndarray], batch_size: int = 1) -> Iterator[InferenceResult]:
-        """Stream results for an iterable of clouds, ``batch_size`` clouds per forward pass."""
-        buf: list[np.ndarray] = []
-        for pts in clouds:
-            buf.append(pts)
-            if len(buf) == batch_size:
-                yield from self.predict_batch(buf)
-                buf = []
-        if buf:
-            yield from self.predict_batch(buf)
-
     def _empty(self) -> InferenceResult:
         c, d = self.num_classes, self.model.config.ins_dim
         return InferenceResult(

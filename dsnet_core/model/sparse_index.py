@@ -31,11 +31,6 @@ def keys_to_coords(keys: torch.Tensor, shape: tuple[int, int, int]) -> torch.Ten
     )
 
 
-def sort_coords(coords: torch.Tensor, shape: tuple[int, int, int]) -> torch.Tensor:
-    """Permutation ``(M,) int64`` that sorts coordinates by key (the order every table assumes)."""
-    return torch.argsort(coord_keys(coords, shape))
-
-
 def kernel_offsets(kernel: tuple[int, int, int], device: torch.device | str = "cpu") -> torch.Tensor:
     """Kernel taps ``(K, 3) int64`` in row-major (kx, ky, kz) order, as dense ``conv3d`` weights."""
     taps = list(itertools.product(*(range(k) for k in kernel)))

@@ -299,26 +299,6 @@ class NeighbourMap:
         return Rulebook(self.table, groups, tuple(sorted(tap_of_col)), identity)
 
 
-def submanifold_rulebook(
-    coords: torch.Tensor,
-    shape: tuple[int, int, int],
-    kernel: tuple[int, int, int],
-    batch_size: int | None = None,
-) -> Rulebook:
-    """Rulebook of a stride-1 submanifold convolution with padding ``k // 2`` (outputs = inputs).
-
-    Args:
-        coords: int64 ``(M, 4)`` active sites sorted by key.
-        shape: spatial shape.
-        kernel: odd kernel size per axis.
-        batch_size: number of samples (default: read from ``coords``, one host synchronisation).
-    """
-    if batch_size is None:
-        batch_size = int(coords[:, 0].max()) + 1 if coords.shape[0] else 1
-    radius = tuple(k // 2 for k in kernel)
-    return NeighbourMap.build(coords, shape, radius, batch_size).rulebook(kernel)
-
-
 def strided_rulebook(
     coords: torch.Tensor,
     shape: tuple[int, int, int],

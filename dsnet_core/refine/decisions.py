@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from dsnet_core.refine.classes import ClassSets
-from dsnet_core.refine.frame import Confidence
 from dsnet_core.refine.history import TrackSummary
 from dsnet_core.refine.joining import Join, chain_heads, join_tracks, keep_ids_apart
 from dsnet_core.refine.motion import is_static
@@ -72,10 +71,6 @@ class TrackDecisions:
         if values.size == 0:
             return np.full(row.shape, fill, dtype=values.dtype)
         return np.where(row >= 0, values[np.maximum(row, 0)], fill)
-
-    def confidences(self) -> Confidence:
-        """The vote weights of hard labels."""
-        return Confidence.from_mapping(dict(zip(self.ids.tolist(), self.confidence.tolist(), strict=True)))
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able form (lists of numbers)."""

@@ -63,14 +63,6 @@ def _costs(end: tuple, start: tuple) -> np.ndarray:
     return 0.5 * (norm(fwd) + norm(bwd))
 
 
-def join_cost(s: TrackSummary, a: int, b: int, velocity_frames: int) -> float:
-    """Mean distance (metres) between each track's extrapolation across the gap and the other's
-    centre, for track ``a`` ending before track ``b`` starts (indices into ``s.ids``)."""
-    end = _end_state(s, a, velocity_frames, at_end=True)
-    start = _end_state(s, b, velocity_frames, at_end=False)
-    return float(_costs(tuple(np.asarray(x) for x in end), tuple(np.asarray(x) for x in start)))
-
-
 def join_tracks(
     s: TrackSummary,
     eligible: np.ndarray,
@@ -86,7 +78,7 @@ def join_tracks(
         eligible: ``(T,) bool`` tracks that may be joined (not dissolved).
         group: ``(T,) int64`` class group of each track; only tracks of one group are joined.
         max_gap: G, the most frames without a sighting between the two.
-        max_distance: the largest accepted :func:`join_cost`, metres.
+        max_distance: the largest accepted mean extrapolation miss across the gap, metres.
         velocity_frames: sightings each end velocity is fitted to.
 
     Returns:

@@ -140,7 +140,8 @@ class _Tracked:
 
 
 def _apply(frame: FrameInput, d: TrackDecisions) -> _Tracked:
-    """:func:`apply_tracks`, looking up only the points with an id."""
+    """A frame's classes, ids, static flags and changed points after its tracks' decisions
+    (looking up only the points with an id)."""
     nz = np.flatnonzero(frame.inst > 0)
     row = d.lookup(frame.inst[nz])
     has = row >= 0
@@ -153,19 +154,6 @@ def _apply(frame: FrameInput, d: TrackDecisions) -> _Tracked:
     static[points] = d.static[rows]
     changed = (sem != frame.sem) | (key_id(inst) != key_id(frame.inst))
     return _Tracked(sem, inst, static, changed, points, rows)
-
-
-def apply_tracks(
-    frame: FrameInput, d: TrackDecisions
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A frame's classes and ids after its tracks' decisions.
-
-    Returns:
-        ``sem (N,) int64``, ``inst (N,) int64``, ``static (N,) bool`` (points of static or
-        dissolved tracks) and ``changed (N,) bool``.
-    """
-    t = _apply(frame, d)
-    return t.sem, t.inst, t.static, t.changed
 
 
 def _voters(sem: np.ndarray, inst: np.ndarray, static: np.ndarray, sets: ClassSets) -> np.ndarray:

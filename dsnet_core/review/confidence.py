@@ -74,9 +74,3 @@ def frame_confidence(
     ious = ious[np.isfinite(ious)]
     stitch = float(np.clip(ious.mean(), 0.0, 1.0)) if ious.size else 1.0
     return FrameConfidence(semantic, agreement, size, stitch, semantic * agreement * size * stitch, k)
-
-
-def least_confident(scores: np.ndarray, n: int) -> np.ndarray:
-    """Indices of the ``n`` lowest scores, lowest first (ties: the earlier index first)."""
-    order = np.argsort(np.asarray(scores, dtype=np.float64), kind="stable")
-    return order[: max(0, n)]

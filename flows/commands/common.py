@@ -86,15 +86,3 @@ def validation_line(exc) -> str:
         msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
         parts.append(msg if msg.startswith(name + " ") else f"{name}{value}: {msg}")
     return "; ".join(parts)
-
-
-def with_grid(config, grid: str | None):
-    """``config`` (a :class:`~dsnet_core.model.presets.ModelConfig`) with ``--grid 'ρ,φ,z'`` cells."""
-    from dataclasses import replace
-
-    if not grid:
-        return config
-    cells = tuple(int(v) for v in grid.split(",") if v.strip().isdigit())
-    if len(cells) != 3:
-        raise typer.BadParameter(f"--grid wants three cell counts 'ρ,φ,z', got '{grid}'")
-    return replace(config, grid=replace(config.grid, size=cells))

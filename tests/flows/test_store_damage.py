@@ -152,6 +152,29 @@ def test_deleted_infer_chunks_recompute_infer_before_from_stage_shift(finished, 
     _assert_export_identical(root, finished.predictions, tmp_path)
 
 
+def test_a_lost_item_record_is_damage_then_recomputed(finished, synth_log, tmp_path):
+    """Store format 1 writes an item's record before its done flag: a done item without one is
+    damage (status and status --verify report it, export refuses it), never read as done; a rerun
+    recomputes that item and the labels are the undamaged run's."""
+    root = _copy(finished, tmp_path)
+    record = root / "sequences/00/stitch/items/000002.json"
+    record.unlink()
+
+    for options in ((), ("--verify",)):
+        states, out = _status(root, *options)
+        assert states["stitch"] == "damaged" and all(states[s] == "done" for s in ALL if s != "stitch")
+        assert f"damaged: {record}: record of item 2 is missing" in out.replace("\n", "")
+    with pytest.raises(DamagedStoreError, match="item 2 is done but its record is missing"):
+        RunStore(root).arrays(SEQ, P["stitch"].contract).read_item(2)
+    _one_line_error(_invoke("export", root, "--out", tmp_path / "bad"), "item 2", "record")
+
+    acts = _rerun(synth_log, root, finished)
+    assert acts == {**{s: "skip" for s in ALL[:5]}, "stitch": "repair", "score": "fresh"}
+    assert record.is_file() and set(_status(root, "--verify")[0].values()) == {"done"}
+    _assert_export_identical(root, finished.predictions, tmp_path)
+    _assert_scores_identical(root, finished.root)
+
+
 def test_truncated_chunk_is_a_typed_error_then_recomputed(finished, synth_log, tmp_path):
     root = _copy(finished, tmp_path)
     chunk = root / "sequences/00/stitch/arrays.zarr/label/c/2/0"

@@ -1,7 +1,7 @@
 """The device the ``gpu`` tests run their CUDA side on.
 
 CUDA where torch sees one. Without CUDA, ``DSNET_GPU_TESTS_ON_CPU=1`` (set by
-``bench/gpu_check.py --device cpu``) runs the same tests with the CPU on both sides: a smoke run
+``gpu/gpu_check.py --device cpu``) runs the same tests with the CPU on both sides: a smoke run
 proving the tests and their imports work on a machine with only the GPU machine's packages, not
 that CUDA equals CPU. Otherwise the tests are skipped.
 """

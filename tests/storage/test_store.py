@@ -17,7 +17,7 @@ from storage.fs import RootFS
 from storage.locks import LockSet, Owner
 from storage.manifest import BlockFragment, Manifest, fingerprint
 from storage.run import RunStore
-from storage.tables import read_partition, read_table, to_table, write_partition
+from storage.tables import read_partition, read_table, to_table
 
 # the store knows no stage: these tests declare their own arrays and tables, as a stage does
 FRAMES = TableSpec(
@@ -92,8 +92,8 @@ def test_parquet_partition_is_string_and_atomic(tmp_path):
          "pose": eye, "timestamp": 0.0, "checksum": "c", "has_labels": False, "status": "ok", "reason": None},
     ]  # fmt: skip
     table = to_table(FRAMES, rows)
-    write_partition(root, FRAMES, {"sequence": "07"}, table)
-    write_partition(root, FRAMES, {"sequence": "10"}, table)
+    RunStore(tmp_path).write_table("07", FRAMES, rows)
+    RunStore(tmp_path).write_table("10", FRAMES, rows)
     # a crashed writer's temporary file is not taken for data
     (tmp_path / "tables/frames/sequence=07/.part-0.parquet.dead.tmp").write_bytes(b"garbage")
     whole = read_table(root, FRAMES)
@@ -108,13 +108,22 @@ def test_parquet_partition_is_string_and_atomic(tmp_path):
         read_partition(root, FRAMES, {"sequence": "99"})
 
 
+def _put(store: RunStore, arrays, index: int, vals: dict, n: int, sequence: str = "00") -> dict:
+    """Write one item as the runner does: its record (with the chunk record) before its done flag."""
+
+    def before_done(chunks):
+        store.write_item_record(sequence, arrays.contract.stage, index, {"fingerprint": "f", **chunks})
+
+    return arrays.write_item(index, vals, n, before_done)
+
+
 def test_padded_arrays_round_trip_and_done_last(tmp_path):
     store = RunStore(tmp_path)
     arrays = store.create_arrays("00", VOLUME, n_items=3, max_points=10, omit=("probs",))
     assert arrays.names == ["points", "source_frame", "source_index", "labels"]
     pts = np.arange(24, dtype=np.float32).reshape(6, 4)
     vals = {"points": pts, "source_frame": np.zeros(6), "source_index": np.arange(6), "labels": np.ones(6)}
-    arrays.write_item(1, vals, 6)
+    _put(store, arrays, 1, vals, 6)
     back = store.arrays("00", VOLUME)
     assert back.done().tolist() == [False, True, False]
     got = back.read_item(1)
@@ -145,8 +154,8 @@ def test_item_chunks_are_zarrs_both_ways(tmp_path):
     rng = np.random.default_rng(0)
     vals = {"points": rng.normal(size=(4, 4)), "source_frame": np.arange(4), "source_index": -np.arange(4),
             "probs": rng.integers(0, 256, (4, 3))}  # fmt: skip
-    arrays.write_item(0, vals, 4)
-    arrays.write_item(1, {k: v[:0] for k, v in vals.items()}, 0)
+    _put(store, arrays, 0, vals, 4)
+    _put(store, arrays, 1, {k: v[:0] for k, v in vals.items()}, 0)
     base = tmp_path / "sequences/00/align/arrays.zarr"
     group = zarr.open_group(base, mode="r")
     assert group["points"].metadata.codecs[1].level == ZSTD_LEVEL
@@ -177,7 +186,7 @@ def test_item_chunks_are_zarrs_both_ways(tmp_path):
 
     # a chunk of another item's size decodes but is refused
     small = store.create_arrays("01", VOLUME, 1, 2, omit=("labels", "probs"))
-    small.write_item(0, {k: v[:2] for k, v in vals.items() if k != "probs"}, 2)
+    _put(store, small, 0, {k: v[:2] for k, v in vals.items() if k != "probs"}, 2, "01")
     other = tmp_path / "sequences/01/align/arrays.zarr/source_frame/c/0/0"
     (base / "source_frame/c/0/0").write_bytes(other.read_bytes())
     with pytest.raises(
@@ -224,7 +233,7 @@ def test_named_trailing_sizes_come_from_the_plan(tmp_path):
     arrays = store.create_arrays("00", VOLUME, 2, 5, omit=("labels",), dims={"classes": 7})
     assert arrays.group["probs"].shape == (2, 5, 7) and arrays.group.attrs["dims"] == {"classes": 7}
     vals = {"points": np.zeros((3, 4)), "source_frame": np.zeros(3), "source_index": np.zeros(3)}
-    arrays.write_item(0, {**vals, "probs": np.ones((3, 7))}, 3)
+    _put(store, arrays, 0, {**vals, "probs": np.ones((3, 7))}, 3)
     assert store.arrays("00", VOLUME).read_item(0, ["probs"])["probs"].shape == (3, 7)
     with pytest.raises(ValueError, match=r"'probs': shape \(3, 6\)"):
         arrays.write_item(1, {**vals, "probs": np.ones((3, 6))}, 3)
@@ -375,22 +384,45 @@ def test_truncated_table_partition_is_a_typed_error(tmp_path):
         and damage.where == str(part)
         and "bytes when written" not in damage.problem[:5]
     )
-    m.tables = {}  # a manifest from before table records: the footer is checked
+    m.tables = {}  # a finished stage's manifest records every table it wrote: without one, damage
     (damage,) = store.check_stage("00", contract, m)
-    assert damage.table == "frames" and "cannot be read" in damage.problem
+    assert damage.table == "frames" and damage.problem == "table partition has no record in the manifest"
 
 
-def test_stores_without_records_still_read_and_name_undecodable_chunks(tmp_path):
+def test_a_done_item_without_its_record_is_damage_never_read_unchecked(tmp_path):
+    """Store format 1 writes every item's record before its done flag: a done item whose record is
+    lost, or whose record lists no chunks, or which its fragment does not record, is damaged (a
+    read refuses it naming the item; the cheap check lists it for a rerun to recompute), never
+    read back as complete."""
     store = RunStore(tmp_path)
-    arrays = store.create_arrays("00", VOLUME, n_items=2, max_points=4, omit=("probs", "labels"))
-    vals = {"points": np.ones((4, 4)), "source_frame": np.zeros(4), "source_index": np.arange(4)}
-    for i in range(2):  # as before records: no item record with chunks
-        arrays.write_item(i, vals, 4)
-    assert np.array_equal(store.arrays("00", VOLUME).read_item(0)["points"], np.ones((4, 4)))
-    chunk = tmp_path / "sequences/00/align/arrays.zarr/points/c/1/0/0"
-    chunk.write_bytes(chunk.read_bytes()[:5])
-    with pytest.raises(DamagedStoreError, match=r"points/c/1/0/0: .*`dsnet label --from-stage align`"):
-        store.arrays("00", VOLUME).read_item(1)
+    contract, m = _finished_stage(store)
+    arrays = store.arrays("00", VOLUME)
+    store.remove_item_record("00", "align", 1)
+    with pytest.raises(
+        DamagedStoreError, match=r"done/c/1: item 1 is done but its record is missing; .*rerun"
+    ):
+        arrays.read_item(1)
+    record = store.read_item_record("00", "align", 2)
+    del record["chunks"]
+    store.write_item_record("00", "align", 2, record)
+    with pytest.raises(DamagedStoreError, match="item 2 is done but its record lists no chunks"):
+        arrays.read_item(2)
+    assert not arrays.files_intact(2, record)  # a resume recomputes it
+    (frag,) = store.fragments("00", "align", "f").values()
+    del frag.records[0]
+    frag.records[3].pop("chunks")
+    store.write_fragment("00", "align", frag)
+    cheap = store.check_stage("00", contract, m)
+    assert [(d.item, d.problem) for d in cheap] == [
+        (0, "item 0 is done but not recorded"),
+        (1, "record of item 1 is missing"),
+        (3, "item 3 is done but its record lists no chunks"),
+    ]
+    assert cheap[1].where.endswith("sequences/00/align/items/000001.json")
+    assert {d.item for d in store.check_stage("00", contract, m, full=True)} == {0, 1, 2, 3}
+    # an item the block did not write (quarantined: no record, no done chunk) is no damage
+    (tmp_path / "sequences/00/align/arrays.zarr/done/c/0").unlink()
+    assert [d.item for d in store.check_stage("00", contract, m)] == [1, 3]
 
 
 def test_block_outputs_are_checked_against_their_records(tmp_path):
@@ -407,6 +439,10 @@ def test_block_outputs_are_checked_against_their_records(tmp_path):
     assert damage.whole and damage.where == str(out) and "has 5 bytes, 120 when written" in damage.problem
     out.unlink()
     with pytest.raises(DamagedStoreError, match="block output is missing"):
+        store.read_block_bytes("00", "align", "acc-000000.npz")
+    out.write_bytes(b"accumulators" * 10)
+    (tmp_path / "sequences/00/align/blocks/acc-000000.npz.b2").unlink()
+    with pytest.raises(DamagedStoreError, match=r"acc-000000.npz: block output has no record"):
         store.read_block_bytes("00", "align", "acc-000000.npz")
 
 
@@ -478,6 +514,13 @@ def test_report_tables_have_a_record_checked_by_status_and_readers(tmp_path):
     store.write_run_table(report, rows)  # the next run rewrites it whole, with its record
     assert store.check_run_table(report, full=True) == []
 
+    # a run stopped between the file and its record: damage (the next run rewrites it), not a pass
+    (tmp_path / "tables/score_run/.part-0.parquet.b2").unlink()
+    (damage,) = store.check_run_table(report)
+    assert damage.problem == "record of the table is missing" and damage.table == "score_run"
+    with pytest.raises(DamagedStoreError, match=r"score_run/part-0.parquet: record of the table is missing"):
+        store.read_all(report)
+
 
 def test_a_store_of_another_format_is_refused_in_one_line_that_says_to_relabel(tmp_path):
     from storage.errors import NoRunConfigError, StoreFormatError
@@ -533,7 +576,7 @@ def test_a_flipped_bit_in_a_done_flag_is_damage_a_run_sees_before_it_skips(tmp_p
 
 def test_a_partitioned_table_without_partitions_reads_empty_with_its_columns(tmp_path):
     root = RootFS(str(tmp_path))
-    write_partition(root, FRAMES, {"sequence": "00"}, to_table(FRAMES, [{"index": 0}]))
+    RunStore(tmp_path).write_table("00", FRAMES, [{"index": 0}])
     (tmp_path / "tables" / FRAMES.name / "sequence=00" / "part-0.parquet").unlink()
     table = read_table(root, FRAMES)  # every sequence of the run failed: no partition left
     assert table.num_rows == 0

@@ -5,14 +5,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dsnet_core.io.formats import UnknownLogFormatError, detect_format, format_names, open_log
+from dsnet_core.io.formats import FORMATS, UnknownLogFormatError, detect_format, open_log
 from dsnet_core.io.reader import FrameRef
 
 ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_semantickitti_is_detected_and_opened(synth_log):
-    assert "semantickitti" in format_names()
+    assert "semantickitti" in list(FORMATS)
     assert detect_format(synth_log) == "semantickitti"
     reader = open_log(synth_log)
     assert reader.format == "semantickitti"
@@ -37,11 +37,11 @@ def test_missing_root_and_unknown_name(tmp_path):
 
 
 def test_every_input_format_is_registered_and_named_in_the_error(tmp_path):
-    assert format_names() == ["semantickitti", "nuscenes", "rosbag", "folder"]
+    assert list(FORMATS) == ["semantickitti", "nuscenes", "rosbag", "folder"]
     (tmp_path / "notes.txt").write_text("x")
     with pytest.raises(UnknownLogFormatError) as err:
         detect_format(tmp_path)
-    assert all(name in str(err.value) for name in format_names()) and "\n" not in str(err.value)
+    assert all(name in str(err.value) for name in list(FORMATS)) and "\n" not in str(err.value)
 
 
 @pytest.mark.parametrize(("module", "suffix"), [("plyfile", ".ply"), ("laspy", ".las")])
@@ -177,7 +177,7 @@ def test_every_declared_option_is_a_keyword_of_its_reader():
     }
     for name, fmt in FORMATS.items():
         params = set(inspect.signature(readers[name]).parameters) - {"root"}
-        assert set(fmt.option_names) == params, name
+        assert {o.name for o in fmt.options} == params, name
     assert SCAN_SUFFIXES == pointfiles.SUFFIXES
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dsnet_core.metrics.evaluator import PanopticEvaluator
-from dsnet_core.metrics.state import evaluator_state, restore_evaluator, state_from_bytes, state_to_bytes
+from dsnet_core.metrics.state import restore_evaluator, state_from_bytes, state_to_bytes
 from tests.dsnet_core.metrics.frames import raw_frame
 
 
@@ -21,7 +21,7 @@ def test_saved_parts_merge_to_one_pass(kitti, mode):
         parts[i % 3].add(gt, pred, frame=str(k), sequence=seq)
     total = PanopticEvaluator(kitti, min_points=20, mode=mode)
     for part in parts:
-        restored = restore_evaluator(kitti, state_from_bytes(state_to_bytes(evaluator_state(part))))
+        restored = restore_evaluator(kitti, state_from_bytes(state_to_bytes(part.state())))
         assert restored.result() == part.result()
         assert restored.result_by_sequence() == part.result_by_sequence()
         total.merge(restored)
@@ -33,6 +33,6 @@ def test_saved_parts_merge_to_one_pass(kitti, mode):
 def test_state_refuses_another_label_map(kitti):
     from dsnet_core.labels import load_label_map
 
-    state = evaluator_state(PanopticEvaluator(kitti))
+    state = PanopticEvaluator(kitti).state()
     with pytest.raises(ValueError, match="classes"):
         restore_evaluator(load_label_map("panoptic-nuscenes"), state)

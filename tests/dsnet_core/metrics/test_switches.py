@@ -1,10 +1,18 @@
 import numpy as np
 
 from dsnet_core.labels import load_label_map
-from dsnet_core.metrics.switches import SwitchCounter, count_switches
+from dsnet_core.metrics.switches import SwitchCounter
 
 LM = load_label_map("semantic-kitti")
 CAR, PERSON, ROAD = 10, 30, 40  # raw ids
+
+
+def count_switches(gts, preds, label_map, min_points):
+    """A SwitchCounter fed one sequence's frames, as the scorer feeds it."""
+    counter = SwitchCounter(label_map, min_points=min_points)
+    for gt, pred in zip(gts, preds, strict=True):
+        counter.add(gt, pred, "")
+    return counter
 
 
 def lab(sem, inst):

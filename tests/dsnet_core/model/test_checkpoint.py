@@ -110,7 +110,6 @@ def test_predictor_outputs(ckpt):
     assert batch[1].sem.shape == (0,) and batch[1].probs.shape == (0, 20)
     np.testing.assert_array_equal(batch[0].sem, res.sem)
     np.testing.assert_allclose(batch[2].offsets, pred.predict(b).offsets, atol=1e-4)
-    assert len(list(pred.predict_iter([a, b, a], batch_size=2))) == 3
     # same numbers as the model it was saved from
     with torch.inference_mode():
         ref = model.eval()([torch.from_numpy(a)])

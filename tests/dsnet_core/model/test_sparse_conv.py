@@ -10,7 +10,6 @@ from dsnet_core.model.sparse_conv import (
     SparseTensor,
     SubMConv3d,
 )
-from dsnet_core.model.sparse_index import coord_keys, sort_coords
 
 TOL = dict(atol=1e-10, rtol=1e-10)
 
@@ -143,13 +142,6 @@ def test_inverse_without_strided_layer_is_a_clear_error():
     x = make((4, 4, 4), 1, 10, 2, seed=4)
     with pytest.raises(KeyError, match="no strided layer 'zz'"):
         SparseInverseConv3d(2, 2, indice_key="zz").double()(x)
-
-
-def test_sort_coords_orders_by_key():
-    c = torch.tensor([[0, 1, 0, 0], [0, 0, 0, 1], [1, 0, 0, 0]])
-    perm = sort_coords(c, (2, 2, 2))
-    keys = coord_keys(c[perm], (2, 2, 2))
-    assert torch.all(keys[1:] > keys[:-1])
 
 
 @pytest.mark.parametrize("cout", [4, 5])

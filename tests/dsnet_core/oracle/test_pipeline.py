@@ -1,7 +1,7 @@
 """Shifting + clustering + fusion on oracle inputs (no network): ground-truth semantics and box
 centres plus regression noise and oracle features, on the synthetic log of the ``synth_log``
 fixture, scored by the project's evaluator. The shifting weights were trained on a log of another
-seed by ``bench/ablation_shifting.py --save-weights
+seed by ``bench/ablation_clustering.py oracle --save-weights
 tests/dsnet_core/oracle/data/shift_oracle.safetensors``."""
 
 from pathlib import Path

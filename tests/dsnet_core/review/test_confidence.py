@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from dsnet_core.review.confidence import frame_confidence, least_confident
+from dsnet_core.review.confidence import frame_confidence
 
 
 def test_terms_and_score():
@@ -27,8 +27,3 @@ def test_frame_without_instances_or_stitching_is_judged_by_semantics_alone():
 def test_mismatched_instances_are_an_error():
     with pytest.raises(ValueError, match="differ"):
         frame_confidence(np.ones(3), np.ones(2), np.ones(3))
-
-
-def test_least_confident_is_lowest_first_and_stable():
-    assert least_confident(np.array([0.5, 0.2, 0.9, 0.2]), 3).tolist() == [1, 3, 0]
-    assert least_confident(np.array([0.5]), 5).tolist() == [0]

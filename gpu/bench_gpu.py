@@ -20,10 +20,10 @@ test on a machine without a GPU):
    as ``dsnet label --device cuda`` does today).
 
 ``--budget S`` skips the parts that would start after S seconds (each says so); ``--json PATH``
-writes every figure for ``bench/gpu_check.py``'s table. The synthetic log is generated on the fly
+writes every figure for ``gpu/gpu_check.py``'s table. The synthetic log is generated on the fly
 (hdl64, ~124 k points per frame).
 
-Run on a GPU machine: ``PYTHONPATH=. python bench/bench_gpu.py [--preset paper] [--frames 6]``
+Run on a GPU machine: ``PYTHONPATH=. python gpu/bench_gpu.py [--preset paper] [--frames 6]``
 (``make gpu-check`` runs it with the wheels the machine lacks).
 """
 
@@ -234,7 +234,7 @@ def main() -> None:
     ap.add_argument("--budget", type=float, default=float("inf"), help="start no part after S seconds")
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     args = ap.parse_args()
-    if args.device is None:  # `make bench` runs every bench: without CUDA this one says so and skips
+    if args.device is None:  # `make bench` runs it too: without CUDA it says so and skips
         if not torch.cuda.is_available():
             print("bench_gpu: skipped, no CUDA device here (--device cpu runs it as a smoke test)")
             return

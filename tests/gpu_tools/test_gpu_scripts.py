@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "bench"))  # the scripts import each other as top-level modules
+sys.path.insert(0, str(REPO / "gpu"))  # the scripts import each other as top-level modules
 
 import ckpt_parts  # noqa: E402
 import gpu_check  # noqa: E402
@@ -307,10 +307,10 @@ def test_the_widest_preset_that_fits_a_device_run_is_small():
 
 @pytest.mark.slow
 def test_gpu_train_stopped_after_an_epoch_resumes_from_its_parts(tmp_path):
-    """Two CPU runs of bench/gpu_train.py into one OUT: the first stops after one epoch, the
+    """Two CPU runs of gpu/gpu_train.py into one OUT: the first stops after one epoch, the
     second (no schedule flags) continues the card's schedule from the unpacked parts."""
     out = tmp_path / "out"
-    base = [sys.executable, "bench/gpu_train.py", "--out", str(out), "--device", "cpu", "--workers", "1"]
+    base = [sys.executable, "gpu/gpu_train.py", "--out", str(out), "--device", "cpu", "--workers", "1"]
     base += ["--wheels", str(tmp_path / "no-wheels"), "--val-frames", "1", "--budget", "900"]
     first = [
         *base,

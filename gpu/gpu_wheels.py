@@ -10,8 +10,8 @@ into an ignored folder that travels with the working tree. ``activate`` (``make 
 temporary folder and puts it first on ``sys.path`` and ``PYTHONPATH``; the machine's own torch and
 site-packages are never touched, and no virtual environment is made.
 
-Run: ``python bench/gpu_wheels.py download [--dest gpu-wheels] [--python-version 3.12]``;
-``python bench/gpu_wheels.py install [--wheels gpu-wheels]`` prints the target folder.
+Run: ``python gpu/gpu_wheels.py download [--dest gpu-wheels] [--python-version 3.12]``;
+``python gpu/gpu_wheels.py install [--wheels gpu-wheels]`` prints the target folder.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """``make gpu-check``: everything a GPU session measures, in one command and one table.
 
-On a machine with a CUDA torch and no package registry (see bench/gpu_wheels.py for what it has):
+On a machine with a CUDA torch and no package registry (see gpu/gpu_wheels.py for what it has):
 
 1. installs the wheels of ``--wheels`` (made beforehand by ``make gpu-wheels``) into a temporary
    target and puts it first on the path; the machine's torch is not touched;
 2. runs every ``gpu``-marked test (tests/gpu: CUDA equals CPU for inference, sparse convolution,
    dynamic shifting and training in each AMP mode), one row per test;
-3. runs bench/bench_gpu.py (frames/s at k = 1 and 2, training steps with and without AMP and their
+3. runs gpu/bench_gpu.py (frames/s at k = 1 and 2, training steps with and without AMP and their
    peak memory, the label stages per frame) with what is left of ``--budget``;
 4. prints one table (and writes it, with the machine and every bench figure, as one JSON file to
    ``--out`` if given: a device run returns at most 8 files).
@@ -16,7 +16,7 @@ both sides (they prove they run, not that CUDA equals CPU) and the bench takes t
 preset on 4 frames. Exit status 1 when a test or the bench failed. Only the standard library is
 imported here; the work runs in child processes.
 
-Run: ``python3 bench/gpu_check.py [--device cuda] [--budget 450] [--out FILE.json]``.
+Run: ``python3 gpu/gpu_check.py [--device cuda] [--budget 450] [--out FILE.json]``.
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ def check_tests(table: Table, args: argparse.Namespace, env: dict, timeout: floa
 
 def check_bench(table: Table, args: argparse.Namespace, env: dict, timeout: float, tmp: Path) -> dict:
     out = tmp / "bench.json"
-    cmd = [sys.executable, "bench/bench_gpu.py", "--device", args.device, "--preset", args.preset]
+    cmd = [sys.executable, "gpu/bench_gpu.py", "--device", args.device, "--preset", args.preset]
     cmd += ["--frames", str(args.frames), "--repeats", str(args.repeats), "--json", str(out)]
     cmd += ["--budget", str(max(timeout - 90, 0))]  # the last part must still fit
     code, text, secs = run(cmd, timeout, env)
@@ -151,7 +151,7 @@ def check_bench(table: Table, args: argparse.Namespace, env: dict, timeout: floa
     for name in res.get("skipped", []):
         table.add("bench", name, "skipped", "past the time budget", failed=True)
     if code != 0:
-        table.add("bench", "bench/bench_gpu.py", f"exit {code}", f"{secs:.0f} s", failed=True)
+        table.add("bench", "gpu/bench_gpu.py", f"exit {code}", f"{secs:.0f} s", failed=True)
         print(f"--- bench output (tail) ---\n{text}", file=sys.stderr)
     return res
 

@@ -1,6 +1,60 @@
-"""4D volumes + stitching vs single-scan DS-Net + the tracking baseline, on a trained model.
+"""4D volumes + stitching vs single-scan clustering + the tracking baseline, one script with two
+modes (``bench/bench_4d.py MODE [options]``):
 
-The model-driven counterpart of ``bench_4d_oracle.py`` ("4D vs the tracking baseline on
+    oracle  on oracle inputs (ground-truth semantics, noisy ground-truth centres): the method alone
+    model   on a trained model through the real label flow: the same rows, the product's numbers
+
+Without a mode it runs both in turn with their defaults (model into a new temporary ``--out``).
+``bench/bench_4d.py MODE --help`` prints that mode's description and options (kept below as
+``ORACLE_DOC`` and ``MODEL_DOC``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from _store4d import SplitStats, poses, stitched, volume_splits, volumes
+
+from dsnet_core.io.semantickitti import SemanticKittiReader
+from dsnet_core.labels import load_label_map
+from dsnet_core.metrics import PanopticEvaluator
+from dsnet_core.metrics.switches import SwitchCounter
+from dsnet_core.oracle.labelling import oracle_volumes, stitch_sequence, track_sequence
+from dsnet_core.synth import generate_log
+from dsnet_core.temporal.tracking import Tracker
+from storage.run import RunStore
+
+ORACLE_DOC = """4D volumes + stitching vs single-scan clustering + the tracking baseline, on oracle inputs.
+
+Ground-truth semantics and noisy ground-truth centres (``dsnet_core.oracle.inputs`` noise model) over
+synthetic sequences with moving objects; the same BFS clusterer and fusion for every row:
+
+- ``k=1 + tracking``: per scan → cluster → fuse → ego-compensated constant-velocity tracker;
+- ``k=1 (no ids across frames)``: the same without tracking (every frame fresh ids), a floor;
+- ``k=2/3/4``: k-scan volumes (stride k-1, one shared frame) → cluster → fuse → stitch.
+
+Prints LSTQ, S_assoc, S_cls (``corrected`` mode), PQ and identity switches along ground-truth
+tubes over all sequences, and the time per frame of the instance stage, of stitching and of
+tracking (the speed ratio stitching/frame is the number to watch, not absolute times).
+
+Run: ``.venv/bin/python bench/bench_4d.py oracle [--frames 40] [--seeds 0 1 2] [--sensor vlp32]``.
+"""
+
+MODEL_DOC = """4D volumes + stitching vs single-scan DS-Net + the tracking baseline, on a trained model.
+
+The model-driven counterpart of the ``oracle`` mode ("4D vs the tracking baseline on
 the same model and sequences"). Every row goes through the real label flow
 (``run_label``: ingest → align → infer → shift → fuse → stitch → score, Prefect included),
 one run store per k under ``--out`` (kept, so ``dsnet dashboard`` can be built from them):
@@ -28,39 +82,92 @@ the ones recorded when they ran (``--force`` recomputes).
 Default data: held-out synthetic sequences (seed 303 from sequence 60; the demo model was
 trained on seed 101 sequences 0–15 and validated on seed 202 sequences 50–51), hdl64 as trained.
 
-Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_4d_model.py [--checkpoint CKPT]
+Run: ``OMP_NUM_THREADS=1 .venv/bin/python bench/bench_4d.py model [--checkpoint CKPT]
 [--checkpoint-4d CKPT4D] [--sequences 2] [--frames 20] [--scans 1,2,3,4] --out DIR``
 (without checkpoints: the bundled ``tiny`` for k = 1 and ``tiny-4d`` for k > 1).
 Writes ``DIR/bench_4d_model.json`` and ``DIR/bench_4d_model.md``.
 """
 
-from __future__ import annotations
 
-import argparse
-import json
-import math
-import os
-import sys
-import time
-from pathlib import Path
+def _parser(mode: str, doc: str) -> argparse.ArgumentParser:
+    return argparse.ArgumentParser(
+        prog=f"bench_4d.py {mode}", description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
 
-import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from _store4d import SplitStats, poses, stitched, volume_splits, volumes
-
-from dsnet_core.io.semantickitti import SemanticKittiReader
-from dsnet_core.labels import load_label_map
-from dsnet_core.metrics import PanopticEvaluator
-from dsnet_core.metrics.switches import SwitchCounter
-from dsnet_core.oracle.labelling import stitch_sequence, track_sequence
-from dsnet_core.temporal.tracking import Tracker
-from storage.run import RunStore
-
+# -- oracle ----------------------------------------------------------------------------------------
 LM = load_label_map("semantic-kitti")
+
+
+def oracle_main(argv: list[str]) -> None:
+    ap = _parser("oracle", ORACLE_DOC)
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--sensor", default="vlp32")
+    ap.add_argument("--noise", type=float, default=1.0, help="scale of the centre-regression noise")
+    args = ap.parse_args(argv)
+
+    rows = ["k=1 + tracking", "k=1 (no ids across frames)", "k=2", "k=3", "k=4"]
+    evals = {r: PanopticEvaluator(LM, mode="corrected") for r in rows}
+    switches = {r: SwitchCounter(LM) for r in rows}
+    times = {r: [0.0, 0.0] for r in rows}  # instance stage, stitch/track
+    n_frames = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in args.seeds:
+            seq = f"{seed:02d}"
+            generate_log(
+                Path(tmp), sequences=1, frames=args.frames, seed=seed, sensor=args.sensor, first_sequence=seed
+            )
+            reader = SemanticKittiReader(Path(tmp))
+            frames = reader.frames(seq)
+            scans = [reader.scan(f) for f in frames]
+            gts = [reader.labels(f) for f in frames]
+            poses = np.stack([reader.pose(f) for f in frames])
+            n_frames += len(frames)
+            for row in rows:
+                t0 = time.perf_counter()
+                k = 1 if row.startswith("k=1") else int(row[2])
+                vols = oracle_volumes(scans, gts, poses, LM, k, noise_scale=args.noise)
+                t1 = time.perf_counter()
+                if row == "k=1 + tracking":
+                    preds = track_sequence(vols, scans, poses, LM)
+                else:
+                    preds = stitch_sequence(vols, LM)
+                t2 = time.perf_counter()
+                times[row][0] += t1 - t0
+                times[row][1] += t2 - t1
+                for f, (gt, pred) in enumerate(zip(gts, preds, strict=True)):
+                    evals[row].add(gt, pred, frame=f"{f:06d}", sequence=seq)
+                    switches[row].add(gt, pred, sequence=seq)
+            print(f"sequence {seq}: {len(frames)} frames, {np.mean([len(s) for s in scans]):.0f} points/scan")
+
+    print(
+        f"\n{len(args.seeds)} sequences × {args.frames} frames ({args.sensor}), "
+        f"noise ×{args.noise}, corrected mode"
+    )
+    print(
+        f"{'method':28s} {'LSTQ':>7s} {'S_assoc':>8s} {'S_cls':>7s} {'PQ':>7s} {'PQ_th':>7s} {'tubes':>6s}"
+        f" {'id sw':>6s} {'inst ms/f':>10s} {'ids ms/f':>9s}"
+    )
+    for row in rows:
+        res = evals[row].result()
+        t = [1000 * x / n_frames for x in times[row]]
+        print(
+            f"{row:28s} {res.lstq.lstq:7.4f} {res.lstq.s_assoc:8.4f} {res.lstq.s_cls:7.4f} "
+            f"{res.panoptic.pq:7.4f} {res.panoptic.pq_things:7.4f} {res.lstq.n_tubes:6d} "
+            f"{switches[row].switches:6d} {t[0]:10.1f} {t[1]:9.2f}"
+        )
+    print("inst ms/f: align + oracle centres + clustering + fusion; ids ms/f: stitching or tracking")
+    print("id sw: identity switches along ground-truth tubes (dsnet_core.metrics.switches)")
+
+
+# -- model -----------------------------------------------------------------------------------------
 FLOW_STAGES = ("ingest", "align", "infer", "shift", "fuse", "stitch")
+
+
 TRACKING, FLOOR = "k=1 + tracking", "k=1 (no ids across frames)"
+
+
 TRACKERS = {TRACKING: True, "k=1 + tracking, no velocity": False}  # row -> constant_velocity
 
 
@@ -262,8 +369,8 @@ def run_all(args, data: Path, reader, seqs, gt, ks, ckpt: str, ckpt4d: str) -> d
     return rows
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def model_main(argv: list[str]) -> None:
+    ap = _parser("model", MODEL_DOC)
     ap.add_argument("--checkpoint", default=None, help="the k = 1 (3D) model (default: the bundled tiny)")
     ap.add_argument(
         "--checkpoint-4d",
@@ -284,7 +391,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True, help="folder for the run stores and the tables")
     ap.add_argument("--force", action="store_true", help="recompute every stage of existing run stores")
     ap.add_argument("--no-warmup", action="store_true", help="skip the 1-frame warm-up label run")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     ckpt, ckpt4d = checkpoints(args.checkpoint, args.checkpoint_4d)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
@@ -355,5 +462,22 @@ def write_results(args, rows: dict[str, Row], n_frames: int, meta: dict) -> None
     print(f"wrote {args.out / 'bench_4d_model.json'}, {args.out / 'bench_4d_model.md'}; run stores run-k*")
 
 
+MODES = {"oracle": oracle_main, "model": model_main}
+
+
+def main(argv: list[str]) -> None:
+    if argv and argv[0] in MODES:
+        MODES[argv[0]](argv[1:])
+        return
+    if argv:
+        sys.exit(f"usage: bench_4d.py {{{'|'.join(MODES)}}} [options] (MODE --help: its options)")
+    import tempfile
+
+    out = tempfile.mkdtemp(prefix="bench-4d-")
+    for mode, extra in (("oracle", []), ("model", ["--out", out])):  # each in its own process
+        print(f"== bench_4d.py {mode} {' '.join(extra)}", flush=True)
+        subprocess.run([sys.executable, __file__, mode, *extra], check=True)
+
+
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -1,7 +1,7 @@
 """``make gpu-train OUT=DIR``: a time-boxed training run on a GPU machine that a later run resumes.
 
 Trains the widest preset whose checkpoint can go back and forth between GPU machines — returned as
-≤ 8 files of ≤ 16 MiB, carried back next to the working tree and the wheels (bench/ckpt_parts.py:
+≤ 8 files of ≤ 16 MiB, carried back next to the working tree and the wheels (gpu/ckpt_parts.py:
 float32 weights within 24 MiB, so ``small``, 3.6 M parameters, 13.7 MiB; ``paper``'s are 216 MiB)
 — on the synthetic stream, rendered by one background process per spare CPU core, with the bundled
 ``tiny-v2``'s recipe (dsnet_core/data/models/README.md): its five street styles and four sensors,
@@ -10,7 +10,7 @@ its six validation sequences (seed 202, sequences 50–55), semantic 8 → insta
 checkpoint starts a wider network. An epoch is as many stream samples as the machine trains in
 about ``--epoch-seconds`` (measured at the start of a new run, then fixed in the card: a resumed
 run draws exactly what an uninterrupted one would), and every epoch is a checkpoint. After each,
-the checkpoint is packed into ``OUT`` (bench/ckpt_parts.py: tar parts, the card and
+the checkpoint is packed into ``OUT`` (gpu/ckpt_parts.py: tar parts, the card and
 ``metrics.csv``, the validation curve); the run stops before an epoch that would not end within
 ``--budget``. Run it again with the same ``OUT`` (on this machine or another) to continue: the
 schedule, preset and samples per epoch then come from the card.
@@ -19,7 +19,7 @@ Imports no prefect, zarr or pydantic of its own (dsnet_core's configs use pydant
 the wheels of ``make gpu-wheels``). ``--device cpu`` with ``--preset tiny`` and a short budget is
 the smoke mode for a machine without a GPU.
 
-Run: ``python3 bench/gpu_train.py --out DIR [--budget 450] [--device cuda]``.
+Run: ``python3 gpu/gpu_train.py --out DIR [--budget 450] [--device cuda]``.
 """
 
 from __future__ import annotations

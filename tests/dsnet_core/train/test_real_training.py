@@ -233,3 +233,20 @@ def test_cli_real_needs_named_sequences_and_records_them(real, val, tmp_path):
     card = json.loads((tmp_path / "s" / "card.json").read_text())
     assert card["training_data"]["real"]["attribution"] == ATTRIBUTION
     assert card["training_data"]["real"]["mix"] == "laser"
+
+
+def test_every_bundled_model_that_saw_real_data_carries_its_attribution():
+    """A bundled card with a ``training_data.real`` record names its attribution, and the models
+    README carries that text (none is bundled today: the rule guards the next one)."""
+    import dsnet_core
+
+    models = Path(dsnet_core.__file__).parent / "data" / "models"
+    readme = (models / "README.md").read_text()
+    for card_path in sorted(models.glob("*/card.json")):
+        real_record = json.loads(card_path.read_text())["training_data"].get("real")
+        if real_record is None:
+            continue
+        assert real_record.get("attribution"), f"{card_path}: saw {real_record['root']} without attribution"
+        assert real_record["attribution"] in readme, (
+            f"{card_path}: its attribution is not in {models}/README.md"
+        )

@@ -78,9 +78,20 @@ def laser_mix(a: Cloud, b: Cloud, bands: int) -> tuple[Cloud, Cloud]:
     Raises:
         ConfigError: fewer than two bands.
     """
+    ea, eb = laser_masks(a.points, b.points, bands)
+    return concat([a.take(ea), b.take(~eb)]), concat([b.take(eb), a.take(~ea)])
+
+
+def laser_masks(a: np.ndarray, b: np.ndarray, bands: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(N_a,) bool, (N_b,) bool``: the points of ``a`` and of ``b`` (``(N, ≥3)`` arrays) in the
+    even ones of ``bands`` equal inclination bands over the range both cover (:func:`laser_mix`).
+
+    Raises:
+        ConfigError: fewer than two bands.
+    """
     if bands < 2:
         raise ConfigError(f"laser mixing needs at least 2 inclination bands, got {bands}")
-    ia, ib = inclination(a.points), inclination(b.points)
+    ia, ib = inclination(a), inclination(b)
     both = np.concatenate([ia, ib])
     lo, hi = (float(both.min()), float(both.max())) if both.size else (0.0, 1.0)
     span = max(hi - lo, 1e-9)
@@ -89,19 +100,20 @@ def laser_mix(a: Cloud, b: Cloud, bands: int) -> tuple[Cloud, Cloud]:
         band = np.clip(((incl - lo) / span * bands).astype(np.int64), 0, bands - 1)
         return band % 2 == 0
 
-    ea, eb = even(ia), even(ib)
-    return concat([a.take(ea), b.take(~eb)]), concat([b.take(eb), a.take(~ea)])
+    return even(ia), even(ib)
 
 
 def polar_mix(a: Cloud, b: Cloud, start: float, width: float) -> tuple[Cloud, Cloud]:
     """Swap the azimuth sector ``[start, start + width)`` (radians, wrapping at 2π): the first scan
     is ``a`` with ``b``'s points in the sector, the second ``b`` with ``a``'s."""
-
-    def inside(c: Cloud) -> np.ndarray:
-        return np.mod(azimuth(c.points) - start, 2 * math.pi) < width
-
-    sa, sb = inside(a), inside(b)
+    sa, sb = sector_mask(a.points, start, width), sector_mask(b.points, start, width)
     return concat([a.take(~sa), b.take(sb)]), concat([b.take(~sb), a.take(sa)])
+
+
+def sector_mask(points: np.ndarray, start: float, width: float) -> np.ndarray:
+    """``(N,) bool``: the points of ``points`` (``(N, ≥3)``) in the azimuth sector
+    ``[start, start + width)`` (radians, wrapping at 2π)."""
+    return np.mod(azimuth(points) - start, 2 * math.pi) < width
 
 
 def mix_pair(

@@ -25,6 +25,8 @@ class Sample:
         thing: bool ``(N,)`` points of thing instances (instance id > 0 and a thing class).
         frame_index: int64 ``(N,)`` position of each point's scan in the volume (0 = oldest).
         name: "sequence/frame_id" of the reference scan.
+        centre: float32 ``(N, 3)`` each thing point's instance centre when fixed before the sample
+            was cut (a mixed sample, :mod:`dsnet_core.train.real`); None: taken on ``points``.
     """
 
     points: np.ndarray
@@ -33,6 +35,7 @@ class Sample:
     thing: np.ndarray
     frame_index: np.ndarray
     name: str
+    centre: np.ndarray | None = None
 
 
 def volume_refs(reader: LogReader, sequences: list[str], scans: int = 1) -> list[list[FrameRef]]:

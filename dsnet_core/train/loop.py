@@ -45,6 +45,7 @@ from dsnet_core.train import distributed
 from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
 from dsnet_core.train.finetune import early_stop, holdout_split, stage_start, volume_name
 from dsnet_core.train.metrics import ConfusionMeter
+from dsnet_core.train.real import REAL_STREAM, RealData, centres_of, same_real
 from dsnet_core.train.shifting import (
     clusterer_for,
     make_shift_module,
@@ -168,6 +169,9 @@ class Trainer(TrainerSkeleton):
             where it came from). Ignored when resuming an existing ``out``.
         lift: ``(n, pooling)``: lift the plain ``init_from`` model to C_n first
             (:func:`~dsnet_core.model.network.lift_model`).
+        real: real labelled volumes mixed into a share of the semantic, offset and joint stages'
+            samples (:mod:`dsnet_core.train.real`); recorded in the card, and a resumed run must
+            name the same.
     """
 
     def __init__(
@@ -183,8 +187,10 @@ class Trainer(TrainerSkeleton):
         resume: bool = False,
         init_from: str | Path | None = None,
         lift: tuple[int, str] | None = None,
+        real: RealData | None = None,
     ) -> None:
         self.out, self.cfg, self.label_map = Path(out), config, label_map
+        self.real = real
         self.step = StepConfig.of(config)
         self.stages = config.stages()
         self.dist, self.device = distributed.setup(config.device)
@@ -196,10 +202,13 @@ class Trainer(TrainerSkeleton):
                 self.out, self.device, expect_config=model_config, expect_label_map=label_map
             )
             log.info("resuming from %s (epochs done: %s)", self.out, self.card.epochs)
+            self._check_real(real)
         else:
             torch.manual_seed(config.seed)
             self.model, source = self._start(model_config, init_from, lift)
             self.card = self._new_card(sequences, val_sequences, source)
+            if real is not None:
+                self.card.training_data["real"] = self.dist.from_main(real.record)
         before = self.card.training_data.get("train_config", {}).get("world_size", 1)
         if self.card.epochs and before != self.dist.world_size:
             log.warning(
@@ -229,6 +238,17 @@ class Trainer(TrainerSkeleton):
             return sorted({v[-1].sequence for v in self.val_vols})
         self.val_vols = volume_refs(val_reader, val_sequences, config.scans)
         return val_sequences
+
+    def _check_real(self, real: RealData | None) -> None:
+        """Refuse to resume with another ``--real`` than the checkpoint trained with.
+
+        Raises:
+            ConfigError: naming the checkpoint and what differs.
+        """
+        now = self.dist.from_main(real.record) if real is not None else None
+        why = same_real(self.card.training_data.get("real"), now)
+        if why:
+            raise ConfigError(f"{self.out}: cannot resume with another --real: {why}")
 
     def _start(
         self, model_config: ModelConfig, init_from: str | Path | None, lift: tuple[int, str] | None
@@ -409,10 +429,24 @@ class Trainer(TrainerSkeleton):
         stage_idx = STAGE_SEED[stage]
         if isinstance(self.reader, StreamLog):  # never-seen samples, a function of (stage, epoch)
             self.train_vols = self.reader.volumes(self.reader.window(stage_idx, epoch))
-        plan = self.shuffled_plan([self.cfg.seed, stage_idx, epoch], len(self.train_vols), self._sample)
+        load = self._sample
+        if self.real is not None:  # a share of the samples mixed with real volumes (own stream)
+            load = self._real_loader([self.cfg.seed, stage_idx, epoch, REAL_STREAM])
+        plan = self.shuffled_plan([self.cfg.seed, stage_idx, epoch], len(self.train_vols), load)
         if isinstance(self.reader, StreamLog):
             self.reader.prefetch([self.train_vols[i][-1].sequence for i in plan.order])
         return plan
+
+    def _real_loader(self, key: list[int]):
+        """``load(i, rng)``: the synthetic sample ``i`` as without ``--real``, then mixed with a real
+        volume or not, by draws of the stream ``key`` (the rank's own under torchrun)."""
+        assert self.real is not None
+        real, rng_real = self.real, np.random.default_rng([*key, self.dist.rank])
+
+        def load(i: int, rng: np.random.Generator) -> Sample:
+            return real.draw(self._sample(i, rng), rng_real, rng_real if self.cfg.augment else None)
+
+        return load
 
     def _sample(self, i: int, rng: np.random.Generator) -> Sample:
         s = load_sample(self.reader, self.train_vols[i], self.label_map)
@@ -439,7 +473,11 @@ class Trainer(TrainerSkeleton):
         xyz = torch.cat([c[:, :3] for c in clouds])
         keys = np.concatenate([s.inst + (b << 40) * (s.inst > 0) for b, s in enumerate(samples)])
         valid = torch.from_numpy(np.concatenate([s.thing for s in samples])).to(self.device)
-        centres = instance_centres(xyz, torch.from_numpy(keys).to(self.device), valid)
+        if any(s.centre is not None for s in samples):  # centres fixed before mixing
+            fixed = [s.centre if s.centre is not None else centres_of(s) for s in samples]
+            centres = torch.from_numpy(np.concatenate(fixed)).to(self.device, xyz.dtype)
+        else:
+            centres = instance_centres(xyz, torch.from_numpy(keys).to(self.device), valid)
         if out.anchor_scores is not None:  # equivariant: eq. 9 + the offset in the anchor's frame
             return equivariant_offset_loss(out.anchor_scores, out.anchor_offsets, xyz, centres, valid)
         return offset_loss(out.offsets, xyz, centres, valid)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field
@@ -61,6 +62,20 @@ class DsnetTrainOptions(StepOptions):
     )
     stream_variety: Literal["base", "wide"] = Field(
         "base", description="--stream: the street styles' variety, base or wide."
+    )
+    real: Path | None = Field(
+        None, description="Mix real labelled scans of this log into training (docs/realdata.md)."
+    )
+    real_sequences: str | None = Field(
+        None, description="--real: the sequences to train on, named (required; e.g. 30 for PandaSet)."
+    )
+    real_share: float = Field(0.5, gt=0.0, le=1.0, description="--real: share of samples with a real scan.")
+    real_mix: Literal["both", "laser", "polar", "none"] = Field(
+        "both", description="--real: LaserMix bands, PolarMix sectors, both (drawn per sample) or none."
+    )
+    real_attribution: str | None = Field(
+        None,
+        description="--real: the data's attribution, recorded in the card (PandaSet: its CC BY 4.0 line).",
     )
 
 
@@ -146,6 +161,41 @@ def _stream_card(log: str | None):
     return estimate_sensor(open_log(log), log).card
 
 
+def real_data(options: DsnetTrainOptions, label_map, val_sequences: list[str]):
+    """The :class:`~dsnet_core.train.real.RealData` of ``--real`` (None without it).
+
+    Raises:
+        ConfigError: ``--real-sequences`` missing, or naming a sequence the run validates on.
+    """
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.io.formats import open_log
+    from dsnet_core.train.real import RealData, RealOptions
+
+    if options.real is None:
+        if options.real_sequences or options.real_attribution:
+            raise ConfigError("--real-sequences and --real-attribution need --real DIR")
+        return None
+    sequences = options.names(options.real_sequences)
+    if not sequences:
+        raise ConfigError(
+            f"--real {options.real}: name the sequences to train on with --real-sequences (e.g. 30 for "
+            "PandaSet, whose 31 and 32 are validation only)"
+        )
+    if options.val_data is not None and Path(options.val_data).resolve() == Path(options.real).resolve():
+        both = sorted(set(sequences) & set(val_sequences))
+        if both:
+            raise ConfigError(
+                f"--real-sequences {','.join(both)} are also validation sequences of {options.real}"
+            )
+    if not options.real_attribution:
+        log.warning("--real %s: no --real-attribution: the card carries none", options.real)
+    reader = open_log(options.real)
+    opts = RealOptions(
+        Path(options.real), tuple(sequences), options.real_share, options.real_mix, options.real_attribution
+    )
+    return RealData(reader, opts, options.scans, label_map)
+
+
 def train_dsnet(method: Method, options: DsnetTrainOptions, on_step: StepCallback | None = None) -> str:
     """Train (or resume) a checkpoint of ``method`` (DS-Net; ``--init-from bundled`` is its bundled
     model for k = ``scans``); returns the summary line.
@@ -184,9 +234,10 @@ def train_dsnet(method: Method, options: DsnetTrainOptions, on_step: StepCallbac
         if init_from is not None:
             _check_inherited_inputs(options, init_from)
         lift = (options.equivariant, options.pooling) if init_from and options.equivariant != 1 else None
+        real = real_data(options, data.label_map, data.val_sequences)
         trainer = Trainer(
             options.out, config, data.reader, data.sequences, data.val_reader, data.val_sequences,
-            data.label_map, cfg, options.resume, init_from, lift,
+            data.label_map, cfg, options.resume, init_from, lift, real,
         )  # fmt: skip
         card = trainer.run(on_step=on_step if trainer.dist.is_main else None)
     finally:

@@ -42,10 +42,12 @@ def confidence(runs: list[RunTables]) -> str:
         names += [k for k in sorted(means, key=lambda k: means[k]) if k not in names]
         parts.append(f"<h3>{tag(r)}{esc(run.label)}</h3>")
         if not means:
-            parts.append(
-                f"<p class='note'>method {esc(lab.run['method'])} stores no per-point probabilities: "
-                "no confidences</p>"
+            why = (
+                "the run has no points"
+                if lab.sequences and not any(q["points"] for q in lab.sequences)
+                else f"method {esc(lab.run['method'])} stores no per-point probabilities"
             )
+            parts.append(f"<p class='note'>{why}: no confidences</p>")
             continue
         body = "".join(
             f"<tr><td>{esc(lab.name(c))}</td>{cell(fmt.count(n[c]), f'confn:{r}:{c}', n[c])}"

@@ -11,9 +11,27 @@ from flows.report.confidence import frame_confidence_rows
 from storage.run import RunStore
 from tasks.base import labels_contract
 from tasks.confidence import model_stage
+from tasks.ingest import IngestStage
+from tasks.pipeline import Pipeline
 from tasks.run_config import read_run
 
 TERMS = ("score", "semantic", "agreement", "size", "stitch", "n_instances")
+
+
+def _frames_if_no_points(store: RunStore, pipeline: Pipeline) -> int | None:
+    """The run's frame count when its labels stage is done in every sequence and no frame holds a
+    point (ingest's frame table); None otherwise."""
+    ingest = next(s for s in pipeline if isinstance(s, IngestStage))
+    n = 0
+    for seq in store.sequences():
+        m = store.read_manifest(seq, pipeline.labels)
+        if m is None or m.status != "done":
+            return None
+        points = store.read_table(seq, ingest.table("frames"))["n_points"].to_pylist()
+        if any(points):
+            return None
+        n += len(points)
+    return n or None
 
 
 def export_review(root: str, out: str | Path, top: int, storage_options: dict | None = None) -> list[dict]:
@@ -29,6 +47,11 @@ def export_review(root: str, out: str | Path, top: int, storage_options: dict | 
     pipeline = run.pipeline()
     rows = frame_confidence_rows(store, pipeline, store.sequences())[:top]
     if not rows:
+        n_frames = _frames_if_no_points(store, pipeline)
+        if n_frames is not None:
+            raise ConfigError(
+                f"{store.uri}: the run has no points (its {n_frames} frames are empty): nothing to review"
+            )
         raise ConfigError(f"{store.uri}: no labelled frames to review (has `dsnet label` finished?)")
     reader = run.open_log()
     labels = labels_contract(pipeline.labels)

@@ -151,16 +151,23 @@ class StatusView:
         return change
 
     def report_rows(self, verbose: bool = False) -> list[list[str]]:
-        """One row per report table the run wrote (``done``/``damaged``, sequence ``(run)``)."""
+        """One row per report table the run wrote (``done``/``damaged``, sequence ``(run)``); a
+        refine table left by an earlier run with refine on, where this run has it off, says so
+        (``from an earlier run (refine is off)``) and is not checked."""
         from flows.report.tables import REPORT_TABLES
 
+        refine_on = "refine" in self.pipeline.names()
         rows = []
         for name, spec in REPORT_TABLES.items():
             if not self.store.has_table(spec):
                 continue
-            found = self.store.check_run_table(spec, full=self.verify)
-            self.damaged += found
-            row = ["(run)", f"table {name}", "damaged" if found else "done", "", "", "", ""]
+            if name.startswith("refine_") and not refine_on:
+                state = "from an earlier run (refine is off)"
+            else:
+                found = self.store.check_run_table(spec, full=self.verify)
+                self.damaged += found
+                state = "damaged" if found else "done"
+            row = ["(run)", f"table {name}", state, "", "", "", ""]
             if verbose:
                 n = sum(self.store.root.sizes(f"tables/{name}").values())
                 self.stage_total["(report)"] = self.stage_total.get("(report)", 0) + n

@@ -27,6 +27,7 @@ class LogSummary:
             (:data:`dsnet_core.io.intensity.CONVENTIONS`; every reader hands the model 0–1).
         no_return: sequence -> source points without a return (NaN), dropped by the reader and
             not counted in ``points``.
+        largest: sequence -> (frame id, points) of its frame with the most points.
     """
 
     format: str = ""
@@ -39,6 +40,7 @@ class LogSummary:
     fields: dict[str, str] = field(default_factory=dict)
     intensity: dict[str, str] = field(default_factory=dict)
     no_return: dict[str, int] = field(default_factory=dict)
+    largest: dict[str, tuple[str, int]] = field(default_factory=dict)
 
 
 def summarize(reader: LogReader, sequences: list[str] | None = None) -> LogSummary:
@@ -62,6 +64,8 @@ def summarize(reader: LogReader, sequences: list[str] | None = None) -> LogSumma
         for ref in frames:
             scan = reader.scan(ref)
             total += scan.shape[0]
+            if seq not in summary.largest or scan.shape[0] > summary.largest[seq][1]:
+                summary.largest[seq] = (str(ref.frame_id), int(scan.shape[0]))
             summary.no_return[seq] += int(dropped(ref)) if dropped else 0
             label = reader.labels(ref)
             if label is None or lm is None:

@@ -42,7 +42,7 @@ def read_scan(path: str | Path) -> np.ndarray:
                 what = "is not a multiple of 16 (float32 x, y, z, remission): truncated?"
                 raise ScanFormatError(path, f"size {size} bytes {what}")
             scan = np.empty((size // 16, 4), np.float32)
-            got = f.readinto(memoryview(scan).cast("B"))
+            got = f.readinto(memoryview(scan).cast("B")) if size else 0  # an empty scan: no view to cast
     except OSError as exc:
         raise ScanFormatError(path, f"cannot read scan: {exc.strerror or exc}") from exc
     if got != size:

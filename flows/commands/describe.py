@@ -106,6 +106,19 @@ def print_sensor(estimate, out: Path | None) -> None:
         typer.echo(f"wrote the sensor card to {Path(out).resolve()} (dsnet synth OUT --sensor-card {out})")
 
 
+def point_limit_lines(summary) -> list[str]:
+    """One line per sequence whose largest frame is over `dsnet label`'s default ``--max-points``."""
+    from tasks.ingest import MAX_POINTS
+
+    return [
+        f"sequence {seq}: frame {frame} has {n} points, over `dsnet label`'s --max-points limit "
+        f"({MAX_POINTS}): label refuses it (--max-points N raises the limit, about 1.3 GB of memory "
+        "per million points; --on-error skip quarantines such frames)"
+        for seq, (frame, n) in summary.largest.items()
+        if n > MAX_POINTS
+    ]
+
+
 def print_log_summary(summary) -> None:
     """The sequences table and, for labelled logs, the class histogram."""
     from rich.console import Console
@@ -140,6 +153,8 @@ def print_log_summary(summary) -> None:
             source or "none (dsnet label --estimate-poses)",
         )
     console.print(table)
+    for line in point_limit_lines(summary):
+        console.print(line, markup=False, highlight=False)
     if summary.class_points:
         total = sum(summary.class_points.values())
         hist = Table(title="class histogram (train ids)")

@@ -44,6 +44,7 @@ svg .cursor { stroke:#1d2330; stroke-width:1; stroke-dasharray:3 3; }
 .bev .pair { display:flex; gap:4px; }
 .bev img { width:240px; height:240px; image-rendering:pixelated; border-radius:4px; }
 .note { color:var(--muted); font-size:12px; margin:2px 0 6px; }
+.warn { color:#b45309; font-weight:600; margin:4px 0; }
 h4 { margin:12px 0 4px; font-size:13px; color:var(--muted); font-weight:600; }
 .legend { display:flex; flex-wrap:wrap; gap:4px 14px; margin:4px 0 10px; font-size:12px; }
 .legend .key { white-space:nowrap; }

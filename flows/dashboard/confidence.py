@@ -42,10 +42,12 @@ def confidence(runs: list[RunTables]) -> str:
         names += [k for k in sorted(means, key=lambda k: means[k]) if k not in names]
         parts.append(f"<h3>{tag(r)}{esc(run.label)}</h3>")
         if not means:
-            parts.append(
-                f"<p class='note'>method {esc(lab.run['method'])} stores no per-point probabilities: "
-                "no confidences</p>"
+            why = (
+                "the run has no points"
+                if lab.sequences and not any(q["points"] for q in lab.sequences)
+                else f"method {esc(lab.run['method'])} stores no per-point probabilities"
             )
+            parts.append(f"<p class='note'>{why}: no confidences</p>")
             continue
         body = "".join(
             f"<tr><td>{esc(lab.name(c))}</td>{cell(fmt.count(n[c]), f'confn:{r}:{c}', n[c])}"
@@ -95,7 +97,7 @@ def _gallery(r: int, run: RunTables) -> str:
         f'<div class="pair"><img alt="classes" src="{_png(b["png_class"])}">'
         f'<img alt="instances" src="{_png(b["png_instance"])}"></div>'
         f"<figcaption>seq {esc(b['sequence'])} · frame {esc(b['frame_id'])} · score "
-        f'<b data-k="lbev:{r}:{b["rank"]}" data-v="{esc(repr(b["score"]))}">{fmt.score(b["score"])}</b>'
+        f'<b data-k="lbev:{r}:{b["rank"]}" data-v="{esc(repr(b["score"]))}">{fmt.score(b["score"])}</b> %'
         f" · ±{b['extent_m']:.0f} m<br><span class='note'>classes | instances</span></figcaption></figure>"
         for b in lab.bev
     )
@@ -106,6 +108,8 @@ def _gallery(r: int, run: RunTables) -> str:
     )
     return (
         "<h4>least confident frames</h4>"
-        "<p class='note'>Seen from above, sensor at the centre, forward up.</p>"
+        "<p class='note'>Seen from above, sensor at the centre, forward up. score: the frame score "
+        "in % (mean winning probability × instance agreement × share of instances of 30 points or "
+        "more × stitching IoU; 100: sure).</p>"
         f"<div class='gallery'>{figs}</div>{keys}"
     )

@@ -55,6 +55,7 @@ class RunTables:
         sequences / classes / timings / bev / review: rows of the report tables.
         frames: ``frame_metrics`` rows by sequence, sorted by frame index.
         labelled: the labelling report (None: the run has none yet).
+        progress: where an unfinished run is (:func:`run_progress`; None: every stage done).
     """
 
     label: str
@@ -67,6 +68,7 @@ class RunTables:
     review: list[dict[str, Any]]
     frames: dict[str, list[dict[str, Any]]]
     labelled: Labelled | None = None
+    progress: str | None = None
 
     @property
     def scored(self) -> bool:
@@ -119,6 +121,36 @@ def _labelled(store: RunStore) -> Labelled | None:
     )
 
 
+def run_progress(store: RunStore) -> str | None:
+    """Where a run whose stages are not all done is: its first sequence and stage that is not done,
+    ``sequence 00 is at stage infer (running, 2/5 blocks done)`` (``running``: a live run holds the
+    stage's lock; ``stopped``: nobody does); None when every stage of every sequence is done (or
+    only damaged: ``dsnet status`` says what; or the run's method is not one this install has)."""
+    from storage.locks import is_stale
+    from tasks.run_config import read_run
+    from tasks.runner import stage_state
+
+    run = read_run(store)
+    try:
+        pipeline = run.pipeline()
+    except ValueError:  # a method this install does not know: its stages are not known here
+        return None
+    for seq in sorted(set(store.sequences()) | set(run.sequences)):
+        for stage in pipeline.names():
+            state, m, n_done = stage_state(store, pipeline, seq, stage, run)
+            if state in ("done", "damaged"):
+                continue
+            if state == "partial":
+                holder = store.root.read_json(store.lock_rel(seq, stage))
+                live = bool(holder) and not is_stale(holder, run.options.stale_after_s)
+                what = "failed" if m.status == "failed" else "running" if live else "stopped"
+                what = f"{what}, {n_done}/{len(m.blocks)} blocks done"
+            else:
+                what = "not started" if state == "missing" else "stale: its input or settings changed"
+            return f"sequence {seq} is at stage {stage} ({what})"
+    return None
+
+
 def load_run(uri: str, label: str, storage_options: dict | None = None) -> RunTables:
     """Read one run store's report tables.
 
@@ -145,4 +177,5 @@ def load_run(uri: str, label: str, storage_options: dict | None = None) -> RunTa
         review=sorted(_rows(store, "review_queue"), key=lambda r: r["rank"]),
         frames=_frames(store),
         labelled=labelled,
+        progress=run_progress(store),
     )

@@ -40,8 +40,9 @@ ALL = (
 
 
 def page_sections(runs: list[RunTables]) -> list[tuple[str, str, str]]:
-    """``(id, name, html)`` of the sections the runs have: scored ones over the scored runs,
-    labelling ones over the runs with a labelling report, the rest over all."""
+    """``(id, name, html)`` of the sections the runs have: scored ones over the scored runs (each
+    names the runs it leaves out for want of ground truth), labelling ones over the runs with a
+    labelling report, the rest over all."""
     scored = [r for r in runs if r.scored]
     labelled_ = [r for r in runs if r.labelled is not None]
     refined = [r for r in labelled_ if r.labelled.refined]
@@ -49,7 +50,28 @@ def page_sections(runs: list[RunTables]) -> list[tuple[str, str, str]]:
     for group, members in ((SCORED, scored), (LABELLED, labelled_), (REFINED, refined), (ALL, runs)):
         if members:
             out += [(sid, name, fn(members)) for sid, name, fn in group]
+    left_out = [r for r in runs if not r.scored]
+    if scored and left_out:  # a run without ground truth: said in each scored section
+        note = "<p class='warn'>" + "; ".join(
+            f"{esc(r.label)} has no ground-truth scores: not in this section" for r in left_out
+        ) + "</p>"  # fmt: skip
+        sids = {sid for sid, _, _ in SCORED}
+        out = [(sid, name, _after_heading(html, note) if sid in sids else html) for sid, name, html in out]
     return out
+
+
+def _after_heading(html: str, extra: str) -> str:
+    """``extra`` inserted after a section's ``<h2>`` heading."""
+    at = html.find("</h2>")
+    return html if at < 0 else html[: at + 5] + extra + html[at + 5 :]
+
+
+def in_progress(run: RunTables) -> str:
+    """The line that says a run is not finished (``run.progress`` set)."""
+    return (
+        f"the run is in progress: {run.progress}; the numbers below are of what is done so far "
+        "(`dsnet status` shows every stage)"
+    )
 
 
 def render_dashboard(runs: list[RunTables], title: str = "dsnet run report") -> str:
@@ -61,13 +83,18 @@ def render_dashboard(runs: list[RunTables], title: str = "dsnet run report") -> 
     body = "".join(html for _, _, html in parts)
     roots = " · ".join(f"{esc(r.label)} = {esc(r.root)}" for r in runs)
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    unfinished = "".join(
+        f"<p class='warn' data-k='progress:{i}'>{esc(r.label)}: {esc(in_progress(r))}</p>"
+        for i, r in enumerate(runs)
+        if r.progress
+    )
     return (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
         "<meta name='viewport' content='width=device-width, initial-scale=1'>"
         "<meta http-equiv='Content-Security-Policy' content=\"default-src 'none'; img-src data:; "
         "style-src 'unsafe-inline'; script-src 'unsafe-inline'\">"
         f"<title>{esc(title)}</title><style>{CSS}</style></head><body>"
-        f"<header><h1>{esc(title)}</h1><div class='sub'>{roots} · built {stamp}</div></header>"
+        f"<header><h1>{esc(title)}</h1><div class='sub'>{roots} · built {stamp}</div>{unfinished}</header>"
         f"<nav>{nav}</nav><main>{body}</main><script>{JS}</script></body></html>"
     )
 

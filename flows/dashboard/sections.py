@@ -310,18 +310,22 @@ def worst_frames(runs: list[RunTables]) -> str:
 
 
 def review(runs: list[RunTables]) -> str:
-    """The least confident instances (fuse instance table / stitch track table)."""
+    """The least confident instances (fuse instance table / stitch track table), by stage and frame
+    numbers."""
     parts = [
-        '<section id="s-review"><h2>Review queue</h2><p class="note">Lowest-confidence instances first.</p>'
+        '<section id="s-review"><h2>Review queue</h2><p class="note">Lowest-confidence instances first. '
+        "stage: the stage that made the instance; frames: the frame numbers (ingest's index) of the "
+        "instance's volume, or the frame a track starts at; confidence: 0–1 (1: sure).</p>"
     ]
-    cols = ("#", "source", "sequence", "volume/frame", "instance", "class", "points", "confidence")
+    cols = ("#", "stage", "sequence", "frames", "instance", "class", "points", "confidence (0–1)")
     for r, run in enumerate(runs):
         body = []
         for q in run.review:
             k = f"review:{r}:{q['rank']}"
+            frames = q.get("frames") or ("–" if q["item"] is None else str(q["item"]))  # older reports
             body.append(
-                f"<tr><td>{q['rank'] + 1}</td><td>{esc(q['source'])}</td><td>{esc(q['sequence'])}</td>"
-                f"<td>{'–' if q['item'] is None else q['item']}</td>"
+                f"<tr><td>{q['rank'] + 1}</td><td>{esc(q['source'].split('/')[0])}</td>"
+                f"<td>{esc(q['sequence'])}</td><td>{esc(frames)}</td>"
                 + cell(str(q["instance"]), f"{k}:instance", q["instance"])
                 + f"<td>{esc(q['class'])}</td>"
                 + cell(fmt.count(q["points"]), f"{k}:points", q["points"])

@@ -19,6 +19,33 @@ from storage.run import RunStore
 from tasks.pipeline import Pipeline
 
 
+def _volume_frames(store: RunStore, pipeline: Pipeline, seq: str) -> dict[int, list[int]]:
+    """Volume index -> its frame indices (the ``volumes`` table of the stage that builds volumes;
+    empty where there is none, or it is not done)."""
+    for stage in pipeline:
+        for spec in stage.tables:
+            if spec.name != "volumes":
+                continue
+            m = store.read_manifest(seq, stage.name)
+            if m is None or m.status != "done":
+                return {}
+            t = store.read_table(seq, spec).to_pydict()
+            return dict(zip(t["index"], t["frames"], strict=True))
+    return {}
+
+
+def _frames_text(item: int | None, unit: str, volumes: dict[int, list[int]]) -> str:
+    """The frame numbers of a queue entry: a volume's ``3–4``, a frame's ``3``, ``""`` unknown."""
+    if item is None:
+        return ""
+    if unit != "volume":
+        return str(item)
+    frames = volumes.get(item)
+    if not frames:
+        return ""
+    return str(frames[0]) if min(frames) == max(frames) else f"{min(frames)}–{max(frames)}"
+
+
 def review_queue(
     store: RunStore,
     pipeline: Pipeline,
@@ -46,6 +73,7 @@ def review_queue(
                 if m is None or m.status != "done":
                     continue
                 t = store.read_table(seq, spec).to_pydict()
+                volumes = _volume_frames(store, pipeline, seq) if stage.item == "volume" else {}
                 for r, conf in enumerate(t[conf_col]):
                     if conf is None or not math.isfinite(conf):
                         continue
@@ -59,6 +87,9 @@ def review_queue(
                             "source": f"{stage.name}/{spec.name}",
                             "sequence": seq,
                             "item": None if item_col is None else t[item_col][r],
+                            "frames": _frames_text(
+                                None if item_col is None else t[item_col][r], stage.item, volumes
+                            ),
                             "instance": int(t[id_col][r]) if id_col else r,
                             "class": "" if cls is None else str(cls),
                             "points": None if pts_col is None else int(t[pts_col][r]),

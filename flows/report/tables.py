@@ -131,6 +131,7 @@ REVIEW_QUEUE = TableSpec(
             ("class", pa.string()),
             ("points", pa.int64()),
             ("confidence", pa.float64()),
+            ("frames", pa.string()),  # the frame numbers: a volume's "3–4", a frame's "3"
         ]
     ),
     partition=(),

@@ -323,3 +323,28 @@ def test_local_dask_cluster(cli_env, tmp_path):
     for seq in ("00", "01"):
         assert store.read_manifest(seq, "align").status == "done"
         assert store.arrays(seq, P["align"].contract).done().all()
+
+
+def test_describe_names_frames_over_labels_point_limit(synth_log, monkeypatch):
+    """A frame over `dsnet label`'s default --max-points is named by `describe` with the option
+    (the limit lowered here in place of a 10-million-point scan)."""
+    from typer.testing import CliRunner
+
+    from dsnet_core.io.semantickitti import SemanticKittiReader
+    from flows.cli import app
+
+    reader = SemanticKittiReader(synth_log)
+    sizes = {r.frame_id: reader.scan(r).shape[0] for r in reader.frames("00")}
+    frame, n = max(sizes.items(), key=lambda kv: kv[1])
+    monkeypatch.setattr("tasks.ingest.MAX_POINTS", n)  # at the limit: nothing said
+    res = CliRunner().invoke(app, ["describe", str(synth_log), "--sequences", "00"])
+    assert res.exit_code == 0 and "--max-points" not in res.output, res.output
+    monkeypatch.setattr("tasks.ingest.MAX_POINTS", n - 1)
+    res = CliRunner().invoke(app, ["describe", str(synth_log), "--sequences", "00"])
+    assert res.exit_code == 0, res.output
+    want = (
+        f"sequence 00: frame {frame} has {n} points, over `dsnet label`'s --max-points limit ({n - 1}): "
+        "label refuses it (--max-points N raises the limit, about 1.3 GB of memory per million points; "
+        "--on-error skip quarantines such frames)"
+    )
+    assert want in " ".join(res.output.split())  # rich wraps the line at the terminal width

@@ -141,6 +141,28 @@ def test_confidence_per_class_review_queue_and_pictures(nogt):
     assert legend["car"]["colour"] == "#" + "".join(f"{v:02x}" for v in LM.color_map[10][::-1])
 
 
+def test_the_review_queue_shows_stages_and_frame_numbers_and_the_scores_units(nogt):
+    store, published = nogt
+    volumes = {r["index"]: r["frames"] for r in store.read_table("00", P["align"].tables[0]).to_pylist()}
+    review = _table(store, "review_queue")
+    assert {r["source"].split("/")[0] for r in review} <= {"fuse", "stitch", "refine"}
+    for r in review:
+        if r["source"].startswith("fuse/"):  # a volume's instance: the volume's frames
+            frames = volumes[r["item"]]
+            assert r["frames"] == f"{min(frames)}–{max(frames)}" and len(frames) == 2
+        else:  # a track: the frame it starts at
+            assert r["frames"] == str(r["item"])
+    assert any(r["source"].startswith("fuse/") for r in review)
+    page = open(published["dashboard"], encoding="utf-8").read()
+    section = page[page.index('<section id="s-review">') :]
+    section = section[: section.index("</section>")]
+    assert not any(r["source"] in section for r in review)  # no internal table names
+    assert "<th>frames</th>" in section and "<th>confidence (0–1)</th>" in section
+    first = review[0]
+    assert f"<td>{first['frames']}</td>" in section
+    assert "score: the frame score in %" in page and "</b> % · ±" in page  # the gallery's unit
+
+
 def test_nogt_dashboard_in_headless_chromium(nogt, tmp_path):
     store, published = nogt
     with Browser(tmp_path / "profile") as browser:

@@ -76,3 +76,33 @@ def test_review_export(run, tmp_path):
         app, ["review", "export", str(store.uri), "--top", "3", "--out", str(tmp_path / "rv")]
     )
     assert again.exit_code == 2 and "already holds frames" in again.output
+
+
+def test_a_zero_point_run_says_it_has_no_points(tmp_path):
+    """A log whose scans are all empty (0-byte ``.bin``): labelled through every stage; the review
+    export and the dashboard say the run has no points (was: "has `dsnet label` finished?", and
+    "stores no per-point probabilities")."""
+    from dsnet_core.io.kitti import read_scan
+    from dsnet_core.synth import generate_log
+
+    log = tmp_path / "log"
+    generate_log(log, sequences=1, frames=3, seed=0, sensor="vlp32")
+    for f in [*log.glob("sequences/*/velodyne/*.bin"), *log.glob("sequences/*/labels/*.label")]:
+        f.write_bytes(b"")
+    assert read_scan(next(log.glob("sequences/00/velodyne/*.bin"))).shape == (0, 4)
+    store = RunStore(tmp_path / "run")
+    ckpt = make_checkpoint(tmp_path / "ck", seed=0)
+    cfg = {**P.record(), "data": str(log), "options": {"block_size": 3},
+           "stages": {"align": {"scans": 2}, "infer": {"checkpoint": str(ckpt)}}}  # fmt: skip
+    store.write_run_config("r1", cfg)
+    for s in P.names():
+        run_stage_plain(store, P, "00", s, cfg, "r1")
+    res = CliRunner().invoke(app, ["review", "export", store.uri, "--out", str(tmp_path / "rev")])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert res.output.strip() == (
+        f"error: {store.uri}: the run has no points (its 3 frames are empty): nothing to review"
+    )
+    res = CliRunner().invoke(app, ["dashboard", store.uri, "--out", str(tmp_path / "d.html")])
+    assert res.exit_code == 0, res.output
+    page = (tmp_path / "d.html").read_text()
+    assert "the run has no points: no confidences" in page and "per-point probabilities" not in page

@@ -132,3 +132,27 @@ def test_a_file_is_not_a_run_folder(tmp_path):
         res.output.strip()
         == f"error: {path}: is a file, not a run folder (the folder `dsnet label --run` wrote)"
     )
+
+
+def _report_states(root) -> dict[str, str]:
+    res = CliRunner().invoke(app, ["status", str(root)], terminal_width=200)
+    assert res.exit_code == 0, res.output
+    cells = [[c.strip() for c in line.split("│")] for line in res.stdout.splitlines()]
+    return {c[2]: c[3] for c in cells if len(c) > 3 and c[1] == "(run)"}
+
+
+def test_refine_tables_of_an_earlier_refined_run_are_marked_after_no_refine(labelled):
+    from flows.report.tables import REPORT_TABLES
+
+    store, log = labelled
+    store.write_run_table(REPORT_TABLES["refine_transitions"], [])
+    store.write_run_table(REPORT_TABLES["stage_timings"], [])
+    assert _report_states(store.uri)["table refine_transitions"] == "done"  # refine on (default)
+    run = _run_config(log)
+    run["method_options"] = {**run["method_options"], "refine": False}
+    run["stage_versions"].pop("refine")
+    run["labels_stage"] = "stitch"
+    store.write_run_config("r2", run)  # the same run folder relabelled with --no-refine
+    states = _report_states(store.uri)
+    assert states["table refine_transitions"] == "from an earlier run (refine is off)"
+    assert states["table stage_timings"] == "done"

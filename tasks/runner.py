@@ -361,7 +361,14 @@ def run_stage_plain(
     run_id: str,
     force: bool = False,
 ) -> Manifest:
-    """Prepare, run every block in a loop, finalise (no Prefect, no locks): tests and benchmarks."""
+    """Prepare, run every block in a loop, finalise (no Prefect, no locks, errors raise).
+
+    For tests, benchmarks and ``dsnet adapt``'s teacher: its stores lie inside the adapt output
+    folder, which the command holds with its writer lock (``flows.commands.model_folder``), and a
+    failing stage fails the adaptation (``dsnet label``'s ``fail`` policy). ``dsnet label``'s stage
+    loop (Prefect tasks, per-(sequence, stage) locks, the ``skip`` policy) is
+    :func:`flows.stage_loop.run_stage`, which tasks cannot import.
+    """
     decision = prepare_stage(store, pipeline, sequence, stage, run, run_id, force)
     if decision.action == "skip":
         return decision.manifest

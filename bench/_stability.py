@@ -195,7 +195,7 @@ def infer_only(data: Path, store: Path, sequences: list[str], row: str, checkpoi
     from bench_methods import ROWS, request_of
 
     from storage.run import RunStore
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     torch.set_num_threads(1)
     request = request_of(ROWS[row], data, store, sequences, {"dsnet": checkpoint}, refine=False)

@@ -109,7 +109,7 @@ def score(ckpt: Path, data: Path, store: Path, cache: Path) -> dict:
     from dsnet_core.metrics import PanopticEvaluator
     from storage.run import RunStore
     from tasks.methods import LabelSettings, get_method
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     torch.set_num_threads(1)
     method = get_method("dsnet")

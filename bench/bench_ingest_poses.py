@@ -25,7 +25,7 @@ from dsnet_core.synth import generate_log
 from dsnet_core.temporal.odometry import trajectory_drift
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import run_stage_plain
+from tests.helpers.plain_runner import run_stage_plain
 
 P = get_pipeline()  # the DS-Net stages
 

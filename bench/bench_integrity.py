@@ -21,8 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dsnet_core.synth import generate_log
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import run_stage_plain
 from tests.helpers.label_request import req
+from tests.helpers.plain_runner import run_stage_plain
 from tests.model_helpers import make_checkpoint
 
 P = get_pipeline()

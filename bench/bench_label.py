@@ -133,7 +133,7 @@ def stages_label(
     ``profile``: a path prefix; each stage's cProfile goes to ``<profile>-<stage>.prof``."""
     from storage.run import RunStore
     from tasks.methods import get_pipeline
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     pipeline = get_pipeline("dsnet", temporal=temporal)
     has_refine = "refine" in [s.name for s in pipeline.stages]
@@ -329,7 +329,7 @@ def overhead_main(argv: list[str]) -> None:
 
     from flows.server import prefect_api
     from storage.run import RunStore
-    from tasks.runner import prepare_stage, run_stage_plain
+    from tests.helpers.plain_runner import prepare_stage, run_stage_plain
 
     t = time.perf_counter()
     with prefect_api() as _:

@@ -161,7 +161,7 @@ def label_row(
     import torch
 
     from storage.run import RunStore
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     torch.set_num_threads(1)
     request = request_of(ROWS[key], data, store, seqs, checkpoints, refine)

@@ -33,7 +33,7 @@ def label_points_per_s(log: Path, tmp: Path) -> tuple[float, int]:
     from bench.bench_label import random_tiny_checkpoint
     from storage.run import RunStore
     from tasks.methods import get_pipeline
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     pipeline = get_pipeline()  # the DS-Net stages
 

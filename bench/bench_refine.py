@@ -97,7 +97,7 @@ def label(row: Row, data: Path, store: Path, refine: dict[str, Any]) -> dict[str
     from dsnet_core.io.formats import open_log
     from storage.run import RunStore
     from tasks.methods import stage_configs
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     torch.set_num_threads(1)
     pipeline, labels = pipeline_of(row)

@@ -15,7 +15,7 @@ from tasks.base import RunOptions
 from tasks.ingest import IngestStage
 from tasks.methods import DEFAULT_METHOD, LabelSettings, Method, get_method
 from tasks.pipeline import Pipeline
-from tasks.run_config import RunConfig
+from tasks.run_config import RunConfig, build_run_config
 
 
 class LabelRequest(BaseModel):
@@ -163,12 +163,12 @@ class LabelRequest(BaseModel):
         Raises:
             CheckpointError: the named checkpoint has no model card.
         """
-        return RunConfig(
-            **pipeline.record(),
-            data=resolved_location(str(self.data)),
-            format=log_format,
-            reader_options=dict(self.reader_options),
-            sequences=list(sequences or []),
+        return build_run_config(
+            pipeline,
+            resolved_location(str(self.data)),
+            log_format,
+            reader_options=self.reader_options,
+            sequences=sequences,
             stages=self.stage_configs(pipeline, self.order(pipeline)),
             options=self.options,
             **record,

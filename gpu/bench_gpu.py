@@ -127,7 +127,7 @@ def stage_seconds(ckpt: Path, log: Path, device: torch.device, tmp: Path) -> dic
     """Seconds per frame of each label stage (k = 1, tracked), the network on ``device``."""
     from storage.run import RunStore
     from tasks.methods import get_pipeline
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     p = get_pipeline("dsnet", temporal="track")
     store = RunStore(tmp / "run")

@@ -117,7 +117,8 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     parent = _parent(options, method)
     card = read_card(parent)
     label_map = label_map_from_class_map(card.class_map)
-    logs = [open_log(str(p)) for p in options.logs]
+    reader_options: dict = {}  # adapt takes no reader options: the teacher records the same
+    logs = [open_log(str(p), options=reader_options) for p in options.logs]
     if len({str(r.root) for r in logs}) < len(logs):
         raise ValueError("a target log is given twice")
     _check_resumed_logs(options, logs, method.name)
@@ -147,7 +148,9 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     _check_teacher_stages(method, settings, parent)
     train, heldout, exclude = corrected_frames(options, logs, cfg)
     source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
-    labeller = TeacherLabeller(options.out, logs, method, settings, params, label_map, exclude, on_label)
+    labeller = TeacherLabeller(
+        options.out, logs, method, settings, params, label_map, exclude, on_label, reader_options
+    )
     record = {
         "method": method.name,
         "logs": [

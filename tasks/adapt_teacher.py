@@ -13,9 +13,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +44,7 @@ from storage.run import RunStore
 from tasks.methods import LabelSettings, Method
 from tasks.pipeline import Pipeline
 from tasks.refine import FrameLoader
-from tasks.run_config import RunConfig
+from tasks.run_config import RunConfig, build_run_config
 from tasks.runner import ITEM_LISTENERS, make_context, run_stage_plain
 
 LabelProgress = Callable[[int, str, int, int], None]
@@ -74,6 +75,8 @@ class TeacherLabeller:
         label_map: the model's class map.
         exclude: ``(sequence, frame_id)`` of frames that have corrections (no pseudo-labels for them).
         progress: called as labelling and selection advance.
+        reader_options: the reader options the logs were opened with (recorded in each store's run
+            config, so the stages reopen the logs alike; ``dsnet adapt`` opens them with none).
     """
 
     def __init__(
@@ -86,8 +89,10 @@ class TeacherLabeller:
         label_map: LabelMap,
         exclude: set[tuple[str, str]] = frozenset(),
         progress: LabelProgress | None = None,
+        reader_options: Mapping[str, Any] | None = None,
     ) -> None:
         self.out, self.logs, self.method, self.settings = Path(out), logs, method, settings
+        self.reader_options = dict(reader_options or {})
         self.params, self.label_map, self.exclude, self.progress = params, label_map, set(exclude), progress
 
     # -- the labeller --------------------------------------------------------------------------
@@ -144,13 +149,14 @@ class TeacherLabeller:
         reader, store = self.logs[i], self.store(i)
         pipeline, stages = self.pipeline(teacher)
         run_id = f"adapt-round{r}"
-        run = RunConfig(
-            data=str(reader.root),
-            format=reader.format,
+        run = build_run_config(
+            pipeline,
+            str(reader.root),
+            reader.format,
+            reader_options=self.reader_options,
             sequences=reader.sequences(),
             stages=stages,
             run_id=run_id,
-            **pipeline.record(),
         )
         store.write_run_config(run_id, run.model_dump(mode="json", exclude={"run_id", "store_format"}))
         names = [*pipeline.upstream_closure(pipeline.labels), pipeline.labels]

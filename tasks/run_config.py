@@ -93,6 +93,35 @@ class RunConfig(BaseModel):
         return stage.Config.model_validate(self.stages.get(stage.name, {}))
 
 
+def build_run_config(
+    pipeline: Pipeline,
+    data: str,
+    log_format: str,
+    *,
+    reader_options: Mapping[str, Any] | None = None,
+    sequences: list[str] | None = None,
+    stages: Mapping[str, Mapping[str, Any]] | None = None,
+    options: RunOptions | None = None,
+    **record: Any,
+) -> RunConfig:
+    """The one builder of a run's config (``dsnet label``'s request, its pending check, ``serve``'s
+    survey and ``dsnet adapt``'s teacher): the pipeline's record (method, its options, stage
+    versions, labels stage), the log (``data`` as the caller resolved it, its ``log_format`` and
+    ``reader_options``), the sequences, each stage's config and the run options; ``record`` adds
+    the run's own fields (``run_id``, ``code_version``, ...).
+    """
+    return RunConfig(
+        **pipeline.record(),
+        data=data,
+        format=log_format,
+        reader_options=dict(reader_options or {}),
+        sequences=list(sequences or []),
+        stages={name: dict(config) for name, config in (stages or {}).items()},
+        options=options or RunOptions(),
+        **record,
+    )
+
+
 def read_run(store, run_id: str | None = None) -> RunConfig:
     """The run config ``store`` records (the latest run's, or ``run_id``'s).
 

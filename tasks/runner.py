@@ -2,6 +2,9 @@
 
 Plain functions (no Prefect): the flows wrap :func:`run_block` in a task; tests and benchmarks call
 them directly. Callers hold the (sequence, stage) locks of the stage and its downstream stages.
+Every function takes the run's typed :class:`~tasks.run_config.RunConfig` (a caller holding a
+recorded or hand-made dict converts it once, with :meth:`RunConfig.of`); a block job carries it,
+so a block does not read ``run.json`` again.
 
 Resume: a block is complete when its fragment (with the stage's fingerprint) exists; a resumed
 stage runs only incomplete blocks, and inside those, items of an array stage whose ``done`` flag
@@ -35,9 +38,6 @@ from tasks.base import Stage, StageContext
 from tasks.pipeline import Pipeline
 from tasks.run_config import RunConfig
 
-Run = RunConfig | dict[str, Any]
-"""A run config, or a dict of one (tests and benchmarks write them by hand)."""
-
 log = logging.getLogger(__name__)
 
 ITEM_LISTENERS: list = []
@@ -58,6 +58,7 @@ class BlockJob:
     run_id: str
     block: int
     items: tuple[int, ...]
+    run: RunConfig
 
 
 @dataclass
@@ -70,9 +71,9 @@ class Decision:
     jobs: list[BlockJob] = field(default_factory=list)
 
 
-def resolved_config(stage: Stage, run: Run) -> dict[str, Any]:
+def resolved_config(stage: Stage, run: RunConfig) -> dict[str, Any]:
     """The stage's config from the run config, validated and with defaults filled in (JSON)."""
-    return RunConfig.of(run).stage_config(stage).model_dump(mode="json")
+    return run.stage_config(stage).model_dump(mode="json")
 
 
 @contextlib.contextmanager
@@ -90,10 +91,9 @@ def frozen_heap() -> Iterator[None]:
 
 
 def make_context(
-    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: Run, plan: dict | None = None
+    store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: RunConfig, plan: dict | None = None
 ) -> StageContext:
     spec = pipeline[stage]
-    run = RunConfig.of(run)
     return StageContext(
         store=store,
         sequence=sequence,
@@ -116,7 +116,7 @@ def upstream_fingerprints(store: RunStore, pipeline: Pipeline, sequence: str, st
     return out
 
 
-def stage_fingerprint(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: Run) -> str:
+def stage_fingerprint(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, run: RunConfig) -> str:
     """What a stage's fingerprint would be now (its upstream stages must be done)."""
     spec = pipeline[stage]
     ctx = make_context(store, pipeline, sequence, stage, run)
@@ -129,13 +129,12 @@ def prepare_stage(
     pipeline: Pipeline,
     sequence: str,
     stage: str,
-    run: Run,
+    run: RunConfig,
     run_id: str,
     force: bool = False,
 ) -> Decision:
     """Decide skip / resume / fresh; on fresh, clear the stage and its downstream and plan it."""
     spec = pipeline[stage]
-    run = RunConfig.of(run)
     ctx = make_context(store, pipeline, sequence, stage, run)
     config = resolved_config(spec, run)
     upstream = upstream_fingerprints(store, pipeline, sequence, stage)
@@ -158,7 +157,7 @@ def prepare_stage(
     if old is not None and old.fingerprint == fp and not force:
         done = store.completed_blocks(sequence, stage, fp)
         jobs = [
-            _job(store, pipeline, sequence, stage, fp, run_id, b, items)
+            _job(store, pipeline, sequence, stage, fp, run, run_id, b, items)
             for b, items in enumerate(old.blocks)
             if b not in done
         ]
@@ -190,7 +189,9 @@ def prepare_stage(
         started=time.time(),
     )
     store.write_manifest(manifest)
-    jobs = [_job(store, pipeline, sequence, stage, fp, run_id, b, items) for b, items in enumerate(blocks)]
+    jobs = [
+        _job(store, pipeline, sequence, stage, fp, run, run_id, b, items) for b, items in enumerate(blocks)
+    ]
     return Decision("fresh", fp, manifest, jobs)
 
 
@@ -224,8 +225,20 @@ def _forget_damaged(
             store.clear_stage(sequence, pipeline[name].contract)
 
 
-def _job(store: RunStore, pipeline: Pipeline, sequence: str, stage: str, fp: str, run_id: str, b: int, items):
-    return BlockJob(store.uri, store.storage_options, pipeline, sequence, stage, fp, run_id, b, tuple(items))
+def _job(
+    store: RunStore,
+    pipeline: Pipeline,
+    sequence: str,
+    stage: str,
+    fp: str,
+    run: RunConfig,
+    run_id: str,
+    b: int,
+    items,
+) -> BlockJob:
+    return BlockJob(
+        store.uri, store.storage_options, pipeline, sequence, stage, fp, run_id, b, tuple(items), run
+    )
 
 
 def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
@@ -235,8 +248,7 @@ def run_block(job: BlockJob, store: RunStore | None = None) -> dict[str, Any]:
     manifest = store.read_manifest(job.sequence, job.stage)
     if manifest is None or manifest.fingerprint != job.fingerprint:
         raise StoreError(store.where(job.sequence, job.stage), "stage changed under this block")
-    run = store.read_run_config(job.run_id)
-    ctx = make_context(store, job.pipeline, job.sequence, job.stage, run, manifest.plan)
+    ctx = make_context(store, job.pipeline, job.sequence, job.stage, job.run, manifest.plan)
     spec = job.pipeline[job.stage]
     arrays = store.arrays(job.sequence, spec.contract, read_only=False) if spec.arrays else None
     rows: dict[str, list[dict]] = {}
@@ -345,11 +357,18 @@ def run_stage_plain(
     pipeline: Pipeline,
     sequence: str,
     stage: str,
-    run: Run,
+    run: RunConfig,
     run_id: str,
     force: bool = False,
 ) -> Manifest:
-    """Prepare, run every block in a loop, finalise (no Prefect, no locks): tests and benchmarks."""
+    """Prepare, run every block in a loop, finalise (no Prefect, no locks, errors raise).
+
+    For tests, benchmarks and ``dsnet adapt``'s teacher: its stores lie inside the adapt output
+    folder, which the command holds with its writer lock (``flows.commands.model_folder``), and a
+    failing stage fails the adaptation (``dsnet label``'s ``fail`` policy). ``dsnet label``'s stage
+    loop (Prefect tasks, per-(sequence, stage) locks, the ``skip`` policy) is
+    :func:`flows.stage_loop.run_stage`, which tasks cannot import.
+    """
     decision = prepare_stage(store, pipeline, sequence, stage, run, run_id, force)
     if decision.action == "skip":
         return decision.manifest
@@ -363,7 +382,7 @@ def stage_state(
     pipeline: Pipeline,
     sequence: str,
     stage: str,
-    run: Run | None = None,
+    run: RunConfig | None = None,
     full: bool = False,
 ) -> tuple[str, Manifest | None, int]:
     """(state, manifest, finished blocks) for ``dsnet status``, from the store alone.

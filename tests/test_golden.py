@@ -59,7 +59,7 @@ def _label_run(log: Path, ckpt: Path, root: Path, scans: int, refine: bool = Fal
     from flows.report import write_report
     from storage.run import RunStore
     from tasks.methods import get_pipeline
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     store = RunStore(root / "run")
     run = {

@@ -14,8 +14,8 @@ import pytest
 
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import run_stage_plain, stage_state
 from tests.flows.conftest import REPO, cli
+from tests.helpers.plain_runner import run_stage_plain, stage_state
 from tests.logs import make_log
 
 P = get_pipeline()  # the DS-Net stages

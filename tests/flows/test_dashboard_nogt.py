@@ -22,9 +22,9 @@ from storage.run import RunStore
 from tasks.base import labels_contract
 from tasks.infer import dequantise_probs
 from tasks.methods import get_pipeline
-from tasks.runner import run_stage_plain
 from tests.flows.browser import Browser
 from tests.flows.conftest import REPO, cli
+from tests.helpers.plain_runner import run_stage_plain
 from tests.model_helpers import make_checkpoint
 
 P = get_pipeline("dsnet", refine=True)

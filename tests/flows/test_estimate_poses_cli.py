@@ -56,8 +56,8 @@ def test_label_estimate_poses(synth_log, cli_env, tmp_path):
 
 def test_serve_pending_follows_the_flag(synth_log, tmp_path):
     from flows.watch import pending_sequences
-    from tasks.runner import run_stage_plain
     from tests.helpers.label_request import req
+    from tests.helpers.plain_runner import run_stage_plain
 
     log = tmp_path / "log"
     shutil.copytree(synth_log, log)

@@ -103,7 +103,7 @@ def test_progress_counts_items_as_blocks_run(synth_log, tmp_path):
     """Each item a block computes in this process is reported (the CLI's bars count frames)."""
     from storage.run import RunStore
     from tasks.methods import get_pipeline
-    from tasks.runner import ITEM_LISTENERS, run_stage_plain
+    from tests.helpers.plain_runner import ITEM_LISTENERS, run_stage_plain
 
     seen: list[tuple[str, str]] = []
     pipeline = get_pipeline()

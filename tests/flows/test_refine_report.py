@@ -23,8 +23,8 @@ from tasks.base import labels_contract
 from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
 from tasks.refine import RefineStage
-from tasks.runner import run_stage_plain
 from tasks.score import ScoreStage
+from tests.helpers.plain_runner import run_stage_plain
 from tests.tasks.oracle_stitch import OracleStitch
 
 LM = load_label_map("semantic-kitti")

@@ -9,7 +9,7 @@ from dsnet_core.errors import ScanFormatError
 from dsnet_core.io.folder import FolderReader
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import run_stage_plain
+from tests.helpers.plain_runner import run_stage_plain
 from tests.logs import make_log
 
 P = get_pipeline()  # the DS-Net stages

@@ -15,7 +15,7 @@ from flows.report.tables import REPORT_TABLES
 from storage.run import RunStore
 from tasks.infer import dequantise_probs
 from tasks.methods import get_pipeline
-from tasks.runner import run_stage_plain
+from tests.helpers.plain_runner import run_stage_plain
 from tests.model_helpers import make_checkpoint
 
 P = get_pipeline(refine=False)

@@ -14,7 +14,7 @@ from flows.cli import app
 from storage.locks import LockSet, Owner
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import prepare_stage, run_block, run_stage_plain
+from tests.helpers.plain_runner import prepare_stage, run_block, run_stage_plain
 
 P = get_pipeline("dsnet")
 

@@ -170,10 +170,11 @@ def add_detections(self, *args, **kw):
     return _orig(self, *args, **kw)
 tr.Tracker.add_detections = add_detections
 from storage.run import RunStore
+from tasks.run_config import read_run
 from tasks.runner import run_stage_plain
 from {module} import {func}
 store = RunStore(sys.argv[1])
-run_stage_plain(store, {func}(), "00", "track", store.read_run_config("r1"), "r1", force=True)
+run_stage_plain(store, {func}(), "00", "track", read_run(store, "r1"), "r1", force=True)
 """
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from storage.run import RunStore
 from tasks.pipeline import Pipeline
-from tasks.runner import run_stage_plain
+from tests.helpers.plain_runner import run_stage_plain
 
 
 def run_all_stages(

@@ -108,7 +108,7 @@ def score_runs(root, log, runs: dict[str, float], sequences=("00", "01"), block_
     (``{name: noise}``) under ``root``; returns their URIs."""
     from flows.report import write_report
     from storage.run import RunStore
-    from tasks.runner import run_stage_plain
+    from tests.helpers.plain_runner import run_stage_plain
 
     out = []
     for name, noise in runs.items():

@@ -19,7 +19,7 @@ from tasks.frames import FrameValues
 from tasks.ingest import IngestStage
 from tasks.methods import get_pipeline
 from tasks.pipeline import Pipeline
-from tasks.runner import make_context, run_stage_plain
+from tests.helpers.plain_runner import make_context, run_stage_plain
 from tests.tasks.test_toy_stage import RangeStage
 
 

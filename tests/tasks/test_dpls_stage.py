@@ -18,7 +18,7 @@ from tasks.base import CLASS_MAP, ItemResult, Plan, StageContext
 from tasks.dpls import DplsStage
 from tasks.methods import get_pipeline
 from tasks.pipeline import Pipeline
-from tasks.runner import prepare_stage, run_stage_plain
+from tests.helpers.plain_runner import prepare_stage, run_stage_plain
 from tests.helpers.run_stages import run_all_stages
 from tests.model_helpers import make_checkpoint, make_dpls_checkpoint, write_gt_prior
 

@@ -27,8 +27,8 @@ from tasks.base import CLASS_MAP, FRAME_LABEL, ItemResult, Plan, Stage, StageCon
 from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
 from tasks.refine import RefineStage
-from tasks.runner import run_stage_plain
 from tasks.stitch import StitchStage
+from tests.helpers.plain_runner import run_stage_plain
 from tests.helpers.stand_ins import FuseStandIn
 
 LM = load_label_map("semantic-kitti")

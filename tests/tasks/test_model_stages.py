@@ -13,7 +13,7 @@ from dsnet_core.model.inference import Predictor
 from storage.run import RunStore
 from tasks.infer import dequantise_probs
 from tasks.methods import get_pipeline
-from tasks.runner import prepare_stage, run_stage_plain
+from tests.helpers.plain_runner import prepare_stage, run_stage_plain
 from tests.model_helpers import KILL_STITCH_AT_THIRD_VOLUME, make_checkpoint
 
 P = get_pipeline(refine=False)  # the DS-Net stages
@@ -146,7 +146,7 @@ def test_clusterer_change_and_new_checkpoint_reprocess_only_downstream(labelled,
     other = make_checkpoint(tmp_path / "other", seed=1)
     new_model = run_config(synth_log, other)
     assert prepare_stage(store, P, "00", "align", new_model, "r3").action == "skip"
-    from tasks.runner import make_context, stage_fingerprint
+    from tests.helpers.plain_runner import make_context, stage_fingerprint
 
     assert stage_fingerprint(store, P, "00", "infer", run) == m["infer"].fingerprint
     assert stage_fingerprint(store, P, "00", "infer", new_model) != m["infer"].fingerprint
@@ -161,7 +161,7 @@ def test_tta_in_the_infer_stage_equals_the_predictors_and_reprocesses_infer_onwa
 
     from dsnet_core.errors import ConfigError
     from dsnet_core.model.tta import TTAConfig
-    from tasks.runner import stage_fingerprint
+    from tests.helpers.plain_runner import stage_fingerprint
 
     shared, run, ckpt, m = labelled
     shutil.copytree(shared.root.path(""), tmp_path / "run")
@@ -201,10 +201,11 @@ KILL_AT_THIRD_VOLUME = (
     + """
 from storage.run import RunStore
 from tasks.methods import get_pipeline
+from tasks.run_config import read_run
 from tasks.runner import run_stage_plain
 store = RunStore(sys.argv[1])
 p = get_pipeline(refine=False)
-run_stage_plain(store, p, "00", "stitch", store.read_run_config("r1"), "r1", force=True)
+run_stage_plain(store, p, "00", "stitch", read_run(store, "r1"), "r1", force=True)
 """
 )
 

@@ -17,8 +17,8 @@ from tasks.base import ItemResult, Plan, StageContext
 from tasks.methods import get_pipeline
 from tasks.most import MostStage
 from tasks.pipeline import Pipeline
-from tasks.runner import prepare_stage, run_stage_plain
 from tests.helpers.kill import kill_track_in_a_copy
+from tests.helpers.plain_runner import prepare_stage, run_stage_plain
 from tests.helpers.run_stages import run_all_stages
 from tests.helpers.stand_ins import align_shaped_plan
 from tests.model_helpers import make_checkpoint, make_most_checkpoint

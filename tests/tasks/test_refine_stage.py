@@ -18,8 +18,8 @@ from storage.run import RunStore
 from tasks.methods import get_pipeline
 from tasks.pipeline import Pipeline
 from tasks.refine import CHANGES, TRACKS, FrameLoader, RefineStage
-from tasks.runner import make_context, prepare_stage, run_stage_plain
 from tasks.score import ScoreStage
+from tests.helpers.plain_runner import make_context, prepare_stage, run_stage_plain
 from tests.tasks.oracle_stitch import LM
 from tests.tasks.refine_pipelines import ORACLE_PLAIN, ORACLE_PROBS_REFINE, ORACLE_REFINE
 
@@ -98,10 +98,11 @@ def test_blocks_and_a_sigkill_mid_block_give_identical_labels(refined, synth_log
         "    return orig(*a, **k)\n"
         "s._finish = finish\n"
         "from storage.run import RunStore\n"
+        "from tasks.run_config import read_run\n"
         "from tasks.runner import run_stage_plain\n"
         "from tests.tasks.refine_pipelines import ORACLE_REFINE\n"
         "store = RunStore(sys.argv[1])\n"
-        "run_stage_plain(store, ORACLE_REFINE, '00', 'refine', store.read_run_config('r1'), 'r1')\n"
+        "run_stage_plain(store, ORACLE_REFINE, '00', 'refine', read_run(store, 'r1'), 'r1')\n"
     )
     res = subprocess.run(
         [sys.executable, "-c", script, str(small.uri)],

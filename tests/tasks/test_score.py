@@ -19,7 +19,7 @@ from dsnet_core.viz.png import decode_png
 from flows.report import headline_keys, read_report_table, write_report
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import prepare_stage, run_stage_plain
+from tests.helpers.plain_runner import prepare_stage, run_stage_plain
 from tests.tasks.oracle_stitch import ORACLE, perturb
 
 P = ORACLE  # ingest, the stand-in labels stage "oracle", score

@@ -17,9 +17,9 @@ from storage.run import RunStore
 from tasks.base import CLASS_MAP, ItemResult, Plan, StageContext
 from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
-from tasks.runner import run_stage_plain
 from tasks.score import ScoreStage
 from tests.dsnet_core.io.encode import quantised_log, write_nuscenes
+from tests.helpers.plain_runner import run_stage_plain
 from tests.tasks.oracle_stitch import LM, OracleStitch, OracleStitchConfig, perturb
 
 SCENE = "scene-0001"

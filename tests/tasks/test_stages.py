@@ -10,7 +10,7 @@ from dsnet_core.io import kitti
 from dsnet_core.io.semantickitti import SemanticKittiReader
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import finalize_stage, prepare_stage, run_block, run_stage_plain, stage_state
+from tests.helpers.plain_runner import finalize_stage, prepare_stage, run_block, run_stage_plain, stage_state
 from tests.logs import NOISE, make_log, pose
 
 P = get_pipeline()  # the DS-Net stages

@@ -17,7 +17,7 @@ from storage.run import RunStore
 from tasks.base import FRAME_LABEL, ItemResult, Plan, Stage, StageConfig, StageContext
 from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
-from tasks.runner import finalize_stage, prepare_stage, run_block, run_stage_plain
+from tests.helpers.plain_runner import finalize_stage, prepare_stage, run_block, run_stage_plain
 
 RANGES = TableSpec("toy_ranges", pa.schema([("index", pa.int32()), ("max_range", pa.float32())]))
 

@@ -15,10 +15,10 @@ from tasks.align import AlignStage
 from tasks.base import ItemResult, StageContext
 from tasks.ingest import IngestStage
 from tasks.pipeline import Pipeline
-from tasks.runner import run_stage_plain
 from tasks.stitch import StitchStage
 from tasks.track import TrackStage
 from tests.helpers.kill import kill_track_in_a_copy
+from tests.helpers.plain_runner import run_stage_plain
 from tests.helpers.stand_ins import FuseStandIn
 
 LM = load_label_map("semantic-kitti")
@@ -100,7 +100,7 @@ def _lstq(store: RunStore, reader, stage: str) -> float:
 
 @pytest.mark.parametrize("keep_state", [True, False])
 def test_track_killed_mid_sequence_resumes_to_identical_labels(tracked, tmp_path, keep_state):
-    from tasks.runner import prepare_stage
+    from tests.helpers.plain_runner import prepare_stage
 
     store, m = tracked
     p = pipeline("track")

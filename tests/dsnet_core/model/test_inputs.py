@@ -270,7 +270,7 @@ def _bare_pcd_log(root) -> None:
 def test_infer_stage_refuses_a_log_without_intensity_for_a_remission_model(tmp_path):
     from storage.run import RunStore
     from tasks.methods import get_pipeline
-    from tasks.runner import prepare_stage, run_stage_plain
+    from tests.helpers.plain_runner import prepare_stage, run_stage_plain
 
     _bare_pcd_log(tmp_path / "log")
     card = ModelCard(architecture={}, class_map=class_map_of(LM), training_data={}, code_version="test")

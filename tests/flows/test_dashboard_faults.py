@@ -16,7 +16,7 @@ from flows.report.tables import REPORT_TABLES
 from storage.locks import LockSet, Owner
 from storage.run import RunStore
 from tasks.methods import get_pipeline
-from tasks.runner import prepare_stage, run_block, run_stage_plain
+from tests.helpers.plain_runner import prepare_stage, run_block, run_stage_plain
 from tests.tasks.oracle_stitch import score_runs
 
 P = get_pipeline("dsnet")

@@ -6,16 +6,14 @@ nuScenes: the tracking evaluator's variant (official).
 
 from __future__ import annotations
 
-import numpy as np
-
 from .lstq import LSTQAccumulator
-from .registry import Column, Frame, Metric, Setup
+from .registry import Column, Frame, Metric, OneAccumulator, Setup
 from .report import Mode
 
 _KEYS = ("lstq", "s_assoc", "s_cls", "iou_things", "iou_stuff")
 
 
-class LSTQMetric:
+class LSTQMetric(OneAccumulator):
     """Accumulator of metric ``lstq`` (state: one :class:`~.lstq.LSTQAccumulator`)."""
 
     def __init__(self, setup: Setup) -> None:
@@ -27,15 +25,6 @@ class LSTQMetric:
     def add(self, frame: Frame) -> dict[str, float]:
         self.acc.add(frame.cells, frame.sequence)
         return {}
-
-    def merge(self, other: LSTQMetric) -> None:
-        self.acc.merge(other.acc)
-
-    def state(self) -> dict[str, np.ndarray]:
-        return self.acc.state()
-
-    def restore(self, state: dict[str, np.ndarray]) -> None:
-        self.acc.restore(state)
 
     def values(self) -> dict[str, float]:
         res = self.acc.result()

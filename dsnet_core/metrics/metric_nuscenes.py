@@ -15,13 +15,13 @@ import numpy as np
 from .decode import ClassSpec
 from .nuscenes_track import PanopticTrackingAccumulator
 from .panoptic import PanopticAccumulator
-from .registry import Column, Frame, Metric, Setup
+from .registry import Column, Frame, Metric, OneAccumulator, Setup
 from .report import Mode
 
 NUSCENES = "panoptic-nuscenes"
 
 
-class TrackingMetric:
+class TrackingMetric(OneAccumulator):
     """Accumulator of ``nuscenes_tracking``: frames of a scene in time order, chunks merged in order."""
 
     def __init__(self, setup: Setup) -> None:
@@ -30,15 +30,6 @@ class TrackingMetric:
     def add(self, frame: Frame) -> dict[str, float]:
         self.acc.add(frame.cells, frame.sequence)
         return {}
-
-    def merge(self, other: TrackingMetric) -> None:
-        self.acc.merge(other.acc)
-
-    def state(self) -> dict[str, np.ndarray]:
-        return self.acc.state()
-
-    def restore(self, state: dict[str, np.ndarray]) -> None:
-        self.acc.restore(state)
 
     def values(self) -> dict[str, float]:
         tr = self.acc.result()

@@ -9,11 +9,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from .decode import ClassSpec
 from .panoptic import FramePQ, PanopticAccumulator, pq_terms, semantic_iou
-from .registry import Column, Frame, Metric, Setup
+from .registry import Column, Frame, Metric, OneAccumulator, Setup
 
 _KEYS = (
     "pq",
@@ -30,7 +28,7 @@ _KEYS = (
 )
 
 
-class PanopticMetric:
+class PanopticMetric(OneAccumulator):
     """Accumulator of metric ``panoptic`` (state: one :class:`~.panoptic.PanopticAccumulator`)."""
 
     def __init__(self, setup: Setup) -> None:
@@ -40,15 +38,6 @@ class PanopticMetric:
     def add(self, frame: Frame) -> dict[str, float]:
         self.acc.add_frame(frame.pq)
         return frame_values(frame.pq, self.spec)
-
-    def merge(self, other: PanopticMetric) -> None:
-        self.acc.merge(other.acc)
-
-    def state(self) -> dict[str, np.ndarray]:
-        return self.acc.state()
-
-    def restore(self, state: dict[str, np.ndarray]) -> None:
-        self.acc.restore(state)
 
     def values(self) -> dict[str, float]:
         res = self.acc.result()

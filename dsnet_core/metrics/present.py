@@ -26,7 +26,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from .panoptic import FramePQ, PanopticAccumulator, pq_terms, semantic_iou
-from .registry import Column, Frame, Metric, Setup
+from .registry import Column, Frame, Metric, OneAccumulator, Setup
 
 
 def present_class_means(
@@ -86,7 +86,7 @@ def gt_points(conf: np.ndarray) -> np.ndarray:
     return np.asarray(conf, dtype=np.int64).sum(axis=0)
 
 
-class PresentMetric:
+class PresentMetric(OneAccumulator):
     """Accumulator of metric ``present``. State: its own :class:`~.panoptic.PanopticAccumulator`
     fed the frames' PQ counts (the confusion gives the ground-truth points per class)."""
 
@@ -104,15 +104,6 @@ class PresentMetric:
         sq, rq, pq = pq_terms(iou_sum, f.tp, f.fp, f.fn)
         iou = semantic_iou(f.conf, self.spec.ignore)[0]
         return present_class_means(iou[inc], gt_points(f.conf)[inc], pq[inc], sq[inc], rq[inc])
-
-    def merge(self, other: PresentMetric) -> None:
-        self.acc.merge(other.acc)
-
-    def state(self) -> dict[str, np.ndarray]:
-        return self.acc.state()
-
-    def restore(self, state: dict[str, np.ndarray]) -> None:
-        self.acc.restore(state)
 
     def values(self) -> dict[str, float]:
         return self._means(self.acc)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -109,6 +109,22 @@ class MetricAccumulator(Protocol):
 
     def class_values(self) -> dict[str, dict[str, float]]:
         """Per class name, the metric's ``class_columns`` (empty when it has none)."""
+
+
+class OneAccumulator:
+    """A metric whose whole state is one accumulator ``self.acc`` (with ``merge``, ``state`` and
+    ``restore`` of its own): those three delegate to it."""
+
+    acc: Any
+
+    def merge(self, other: OneAccumulator) -> None:
+        self.acc.merge(other.acc)
+
+    def state(self) -> dict[str, np.ndarray]:
+        return self.acc.state()
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        self.acc.restore(state)
 
 
 @dataclass(frozen=True)

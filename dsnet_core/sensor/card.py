@@ -121,6 +121,32 @@ class Remission(_Strict):
         return self
 
 
+class SensorOrigin(_Strict):
+    """Where the sensor's optical centre is in its log's frame, and how its spin axis is tilted.
+
+    A log exported in a vehicle frame (origin at the rear axle, or on the ground) holds the same
+    scans as one in the sensor frame, moved: a log point ``p`` is at ``Rᵀ (p − xyz_m)`` in the
+    sensor frame, ``R = Ry(pitch_deg) · Rx(roll_deg)`` (the sensor's axes, as columns, in the log's
+    frame; no yaw: the sensor's azimuth 0 is the log's +x). All zero: the log is in the sensor frame.
+
+    Attributes:
+        xyz_m: ``(3,)`` the sensor's centre in the log's frame (metres).
+        roll_deg, pitch_deg: the sensor's tilt relative to the log's axes (degrees).
+    """
+
+    xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    roll_deg: float = Field(default=0.0, ge=-45.0, le=45.0)
+    pitch_deg: float = Field(default=0.0, ge=-45.0, le=45.0)
+
+    @field_validator("xyz_m")
+    @classmethod
+    def _near(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        for i, x in enumerate(v):
+            if not -100.0 <= x <= 100.0:
+                raise ValueError(f"entry {i} is {x} m, outside ±100 m")
+        return v
+
+
 class SensorCard(_Strict):
     """A LiDAR as ``dsnet synth`` renders it.
 
@@ -136,6 +162,8 @@ class SensorCard(_Strict):
         scan_direction: ``counter-clockwise`` (azimuth increasing along a beam's points),
             ``clockwise``, or None (unknown).
         frame_period_s: seconds between scans (None: unknown).
+        origin: :class:`SensorOrigin`, the sensor's centre and tilt in the log's frame (every other
+            value is measured from that centre, in the sensor's frame).
         mount_height_m: height of the sensor above the ground (metres, ≥ 0).
         mount_pitch_deg, mount_roll_deg: the sensor's tilt relative to the ground.
         min_range_m, max_range_m: range limits (metres).
@@ -157,6 +185,7 @@ class SensorCard(_Strict):
     fov_center_deg: float = Field(default=0.0, ge=-180.0, le=180.0)
     scan_direction: Literal["counter-clockwise", "clockwise"] | None = None
     frame_period_s: float | None = Field(default=None, gt=0.0)
+    origin: SensorOrigin = Field(default_factory=SensorOrigin)
     mount_height_m: float = Field(ge=0.0, le=100.0)
     mount_pitch_deg: float = Field(default=0.0, ge=-45.0, le=45.0)
     mount_roll_deg: float = Field(default=0.0, ge=-45.0, le=45.0)

@@ -2,7 +2,9 @@
 field of view, mounting, range limits, ray drop, range noise and remission, as a
 :class:`~dsnet_core.sensor.card.SensorCard`.
 
-How each value is measured (points in the sensor frame, as every reader hands them):
+How each value is measured, in the sensor's frame: a log in another frame (a vehicle frame, its
+origin at the rear axle or on the ground) is first moved into it, from the sensor's centre and tilt
+found in the first scan (:mod:`dsnet_core.sensor.origin`; the card's ``origin``):
 
 - **beams**: the histogram of the points' elevation angles ``atan2(z, hypot(x, y))`` over many
   scans (points nearer than 2 m left out: parallax and rounding). Rays of one beam share one
@@ -37,7 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from dsnet_core.errors import DataFormatError
-from dsnet_core.sensor.card import RayDrop, Remission, SensorCard
+from dsnet_core.sensor.card import RayDrop, Remission, SensorCard, SensorOrigin
+from dsnet_core.sensor.origin import fit_origin, sharpness, to_sensor_frame
 
 EL_BIN = 0.002  # degrees, elevation histogram resolution
 NEAR = 2.0  # metres: points nearer than this are left out of the elevation histogram
@@ -45,6 +48,7 @@ RANGE_EDGES = (0.0, 5.0, 10.0, 20.0, 30.0, 45.0, 60.0, 80.0, 100.0, 120.0, 150.0
 LEVELS = tuple(round(0.05 * k, 2) for k in range(21))
 INCIDENCE_EDGES = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0)
 DEFAULT_HEIGHT = 1.73
+ORIGIN_POINTS = 12_000  # points of the first scan the sensor's centre is searched with
 
 
 class SensorEstimateError(DataFormatError):
@@ -116,7 +120,8 @@ def estimate_sensor(
     missing: dict[str, str] = {}
     diag: dict[str, float] = {}
     single = len(scans) == 1
-    elevations = _beams(np.concatenate([s.el[s.rng > NEAR] for s in scans]))
+    scans, origin, sharp_scans = _sensor_frame(scans, diag)
+    elevations = _beams(np.concatenate([s.el[s.rng > NEAR] for s in sharp_scans]))
     if elevations.size == 0:
         raise SensorEstimateError(root, f"no point is farther than {NEAR} m: no beam pattern to estimate")
     if single:
@@ -187,6 +192,7 @@ def estimate_sensor(
         fov_center_deg=round(center, 3),
         scan_direction=direction,
         frame_period_s=period,
+        origin=origin,
         mount_height_m=round(height, 4),
         mount_pitch_deg=round(pitch, 3),
         mount_roll_deg=round(roll, 3),
@@ -201,6 +207,23 @@ def estimate_sensor(
     return SensorEstimate(card, len(scans), len(refs), diag)
 
 
+def _sensor_frame(scans: list[_Scan], diag: dict[str, float]) -> tuple[list[_Scan], SensorOrigin, list[_Scan]]:
+    """The scans moved into the sensor's frame (:mod:`dsnet_core.sensor.origin`, fitted on the first
+    scan), the origin found, and the scans the beam table is measured from: those at least 60 % as
+    sharp as the sharpest (a sensor without motion compensation smears its beams while the vehicle
+    moves fast: PandaSet's sequence 30 starts standing and ends at 5 m/s)."""
+    fit = fit_origin(scans[0].xyz, max_points=ORIGIN_POINTS)
+    diag["origin_sharpness"] = fit.sharpness
+    diag["origin_sharpness_at_log_origin"] = fit.sharpness_at_log_origin
+    if not fit.moved:
+        return scans, fit.origin, scans
+    moved = [_from_xyz(to_sensor_frame(s.xyz, fit.origin), s.rem) for s in scans]
+    sharp = np.array([sharpness(s.xyz[:: max(1, s.xyz.shape[0] // 8000)]) for s in moved])
+    keep = [s for s, v in zip(moved, sharp, strict=True) if v >= 0.6 * sharp.max()]
+    diag["origin_sharp_scans"] = float(len(keep))
+    return moved, fit.origin, keep
+
+
 def _spread(scans: list[_Scan], n: int) -> list[_Scan]:
     """At most ``n`` of ``scans``, evenly spread."""
     if len(scans) <= n:
@@ -212,8 +235,13 @@ def _read(scan: np.ndarray) -> _Scan:
     xyz = np.asarray(scan[:, :3], dtype=np.float64)
     rng = np.linalg.norm(xyz, axis=1)
     keep = rng > 1e-3  # (0, 0, 0): a no-return some formats write
-    xyz, rng = xyz[keep], rng[keep]
+    xyz = xyz[keep]
     rem = np.asarray(scan[keep, 3], dtype=np.float32) if scan.shape[1] > 3 else np.zeros(len(xyz), np.float32)
+    return _from_xyz(xyz, rem)
+
+
+def _from_xyz(xyz: np.ndarray, rem: np.ndarray) -> _Scan:
+    rng = np.linalg.norm(xyz, axis=1)
     horiz = np.hypot(xyz[:, 0], xyz[:, 1])
     el = np.degrees(np.arctan2(xyz[:, 2], horiz))
     az = np.arctan2(xyz[:, 1], xyz[:, 0])

@@ -78,8 +78,11 @@ def print_sensor(estimate, out: Path | None) -> None:
         f"azimuth: {c.azimuth_steps} firings per turn ({360.0 / c.azimuth_steps:.4f}°), "
         f"scan direction {c.scan_direction or 'unknown'}, horizontal FOV {c.fov_deg:.1f}° "
         f"centred at {c.fov_center_deg:+.1f}°",
+        f"sensor centre in the log's frame: ({', '.join(f'{v:+.3f}' for v in c.origin.xyz_m)}) m, "
+        f"tilt roll {c.origin.roll_deg:+.2f}° pitch {c.origin.pitch_deg:+.2f}°"
+        + ("" if any(c.origin.xyz_m) or c.origin.roll_deg or c.origin.pitch_deg else " (the log's origin)"),
         f"mounting: {c.mount_height_m:.3f} m above the ground, pitch {c.mount_pitch_deg:+.2f}°, "
-        f"roll {c.mount_roll_deg:+.2f}°",
+        f"roll {c.mount_roll_deg:+.2f}° (from the sensor's centre)",
         f"range: {c.min_range_m:.2f}–{c.max_range_m:.1f} m, range noise {100 * c.range_noise_m:.2f} cm, "
         f"{c.returns_per_scan:.0f} returns per scan"
         + (f", a scan every {c.frame_period_s:.3f} s" if c.frame_period_s else ""),

@@ -18,8 +18,8 @@ import numpy as np
 from dsnet_core.io.formats import open_log
 from dsnet_core.sensor import estimate_sensor
 from dsnet_core.sensor.card import SensorOrigin
-from dsnet_core.sensor.origin import to_sensor_frame
 from dsnet_core.sensor.compare import emd, log_curves
+from dsnet_core.sensor.origin import to_sensor_frame
 from dsnet_core.synth import generate_log
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import math
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -57,6 +57,14 @@ class AdaptOptions(BaseModel):
     source_log: Path | None = Field(None, description="Labelled source log (default: the synthetic stream).")
     source_styles: str | None = Field(None, description="Stream styles (default: the parent's).")
     source_sensors: str | None = Field(None, description="Stream sensors (default: the parent's).")
+    like: Path | None = Field(
+        None,
+        description="Render the synthetic source stream with the LiDAR estimated from this log "
+        "(dsnet describe --sensor; e.g. the target log itself).",
+    )
+    sensor_card: Path | None = Field(
+        None, description="Render the synthetic source stream with this sensor card (YAML, docs/sensor.md)."
+    )
     stream_workers: int = Field(1, ge=0, description="Background render processes of the stream.")
     clusterer: str | None = Field(None, description="The teacher's clusterer (see dsnet label).")
     estimate_poses: bool = Field(False, description="Logs without poses: the teacher estimates them.")
@@ -121,7 +129,8 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     logs = [open_log(str(p), options=reader_options) for p in options.logs]
     if len({str(r.root) for r in logs}) < len(logs):
         raise ValueError("a target log is given twice")
-    _check_resumed_logs(options, logs, method.name)
+    sensor = source_sensor(options)
+    _check_resumed_logs(options, logs, method.name, sensor)
     cfg = AdaptConfig(
         rounds=options.rounds,
         steps=options.steps,
@@ -147,7 +156,9 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     )
     _check_teacher_stages(method, settings, parent)
     train, heldout, exclude = corrected_frames(options, logs, cfg)
-    source, probe = source_scans(options, card, cfg, math.ceil(cfg.steps_in(0) / 2))
+    source, probe = source_scans(
+        options, card, cfg, math.ceil(cfg.steps_in(0) / 2), sensor.card if sensor else None
+    )
     labeller = TeacherLabeller(
         options.out, logs, method, settings, params, label_map, exclude, on_label, reader_options
     )
@@ -164,6 +175,7 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
             for r in logs
         ],
         "selection": asdict(params),
+        "source_sensor": sensor.record() if sensor else None,
         "corrected": {
             "path": str(options.labels) if options.labels else None,
             "train": len(train),
@@ -215,7 +227,56 @@ def _check_teacher_stages(method, settings: LabelSettings, parent: Path) -> None
             raise ValueError(stage_config_line(name, exc)) from None
 
 
-def _check_resumed_logs(options: AdaptOptions, logs: list, method: str) -> None:
+@dataclass(frozen=True)
+class SourceSensor:
+    """The LiDAR the synthetic source stream renders with (``--like LOG`` / ``--sensor-card CARD``).
+
+    Attributes:
+        option: ``"--like"`` or ``"--sensor-card"``; path: the log or card it came from (resolved).
+        card: the :class:`~dsnet_core.sensor.card.SensorCard`.
+    """
+
+    option: str
+    path: str
+    card: object
+
+    def record(self) -> dict:
+        """What the adapted checkpoint's card records (and a resume compares)."""
+        return {"option": self.option, "path": self.path, "card": self.card.model_dump(mode="json")}
+
+
+def source_sensor(options: AdaptOptions) -> SourceSensor | None:
+    """The source stream's sensor card from ``--like LOG`` (estimated) or ``--sensor-card CARD``.
+
+    Raises:
+        ConfigError: both given, or with ``--source-log`` (no stream to render).
+        SensorCardError, SensorEstimateError, DataFormatError: a bad card or log (one line).
+    """
+    from dsnet_core.errors import ConfigError
+
+    if options.like is None and options.sensor_card is None:
+        return None
+    if options.like is not None and options.sensor_card is not None:
+        raise ConfigError("--like and --sensor-card both name the source stream's LiDAR: give one")
+    if options.source_log is not None:
+        flag = "--like" if options.like is not None else "--sensor-card"
+        raise ConfigError(f"{flag} renders the synthetic source stream: it does not apply with --source-log")
+    if options.sensor_card is not None:
+        from dsnet_core.sensor import load_card
+
+        path = Path(options.sensor_card).expanduser()
+        return SourceSensor("--sensor-card", str(path.resolve()), load_card(path))
+    from dsnet_core.io.formats import open_log
+    from dsnet_core.sensor import estimate_sensor
+
+    path = Path(options.like).expanduser()
+    card = estimate_sensor(open_log(str(path)), path, name=path.resolve().name or "sensor").card
+    return SourceSensor("--like", str(path.resolve()), card)
+
+
+def _check_resumed_logs(
+    options: AdaptOptions, logs: list, method: str, sensor: SourceSensor | None = None
+) -> None:
     """A resume adapts to the logs (and with the method and selection) it was started with: a
     finished adaptation resumed with other logs would otherwise say "wrote adapted checkpoint",
     adapted to nothing new.
@@ -241,6 +302,16 @@ def _check_resumed_logs(options: AdaptOptions, logs: list, method: str) -> None:
         moved = [str(r.root) for r, p in zip(logs, prints, strict=True) if p and log_fingerprint(r) != p]
         if moved:
             changed.append(f"LOG {' '.join(moved)}: its scans changed since the adaptation started")
+    was = adapt.get("source_sensor")
+    now = sensor.record() if sensor else None
+    if (was or {}).get("option") != (now or {}).get("option") or (was or {}).get("path") != (now or {}).get(
+        "path"
+    ):
+        before = f"{was['option']} {was['path']}" if was else "the presets"
+        after = f"{now['option']} {now['path']}" if now else "the presets"
+        changed.append(f"the source stream's LiDAR: {before} → {after}")
+    elif was and now and was.get("card") != now["card"]:
+        changed.append(f"{now['option']} {now['path']}: its sensor changed since the adaptation started")
     if adapt.get("method") not in (None, method):
         changed.append(f"--method: {adapt['method']!r} → {method!r}")
     selection = adapt.get("selection") or {}

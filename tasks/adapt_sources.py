@@ -67,10 +67,11 @@ def split(items: list[Item], fraction: float, seed: int) -> tuple[list[Item], li
     return [it for it in items if it.name not in names], [it for it in items if it.name in names]
 
 
-def source_scans(options, card, cfg: AdaptConfig, pairs: int) -> tuple[Source, list[Item]]:
+def source_scans(options, card, cfg: AdaptConfig, pairs: int, sensor_card=None) -> tuple[Source, list[Item]]:
     """The source of the mixed pairs and the source probe: ``--source-log`` (its first volumes are
     the probe), else the synthetic stream of the parent's training styles and sensors (as its card
-    records them; ``--source-styles``/``--source-sensors`` override)."""
+    records them; ``--source-styles``/``--source-sensors`` override), every sample rendered with
+    ``sensor_card``'s LiDAR when one is given (``--like`` / ``--sensor-card``)."""
     if options.source_log is not None:
         from dsnet_core.io.formats import open_log
 
@@ -82,7 +83,7 @@ def source_scans(options, card, cfg: AdaptConfig, pairs: int) -> tuple[Source, l
     stream = card.training_data.get("stream") or {}
     styles = options.names(options.source_styles) or _listed(stream.get("styles"))
     sensors = options.names(options.source_sensors) or _listed(stream.get("sensors"))
-    so = StreamOptions(frames=cfg.scans, styles=styles, sensors=sensors)
+    so = StreamOptions(frames=cfg.scans, styles=styles, sensors=sensors, card=sensor_card)
     train = StreamLog(cfg.seed + SOURCE_SEED, so, max(pairs, 1), options.stream_workers)
     probe = StreamLog(cfg.seed + PROBE_SEED, so, PROBE_SAMPLES, 0)
     return StreamSource(train, 1.0), stream_probe(probe, PROBE_SAMPLES)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dsnet_core.sensor.beams import beam_peaks
 from dsnet_core.sensor.card import SensorOrigin
 
 EL_BIN = 0.02  # degrees, the sharpness histogram's bins
@@ -70,7 +71,9 @@ def rotation(roll_deg: float, pitch_deg: float) -> np.ndarray:
 
 def to_sensor_frame(xyz: np.ndarray, origin: SensorOrigin) -> np.ndarray:
     """``(N, 3) float64`` log points ``xyz`` ``(N, 3)`` in the sensor frame: ``Rᵀ (p − xyz_m)``."""
-    return _apply(np.asarray(xyz, dtype=np.float64), np.array([*origin.xyz_m, origin.roll_deg, origin.pitch_deg]))
+    return _apply(
+        np.asarray(xyz, dtype=np.float64), np.array([*origin.xyz_m, origin.roll_deg, origin.pitch_deg])
+    )
 
 
 def _apply(pts: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -139,7 +142,9 @@ def _coordinate_search(pts: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, floa
     best = _hist_sharpness(_elevations(pts, v))
     for scale in (1.0, 0.4, 0.16, 0.064):
         for dims in ((2,), (0, 4), (1, 3)):
-            ticks = [np.linspace(-spans[k] * scale, spans[k] * scale, 41 if len(dims) == 1 else 13) for k in dims]
+            ticks = [
+                np.linspace(-spans[k] * scale, spans[k] * scale, 41 if len(dims) == 1 else 13) for k in dims
+            ]
             top = v
             for d in itertools.product(*ticks):
                 w = v.copy()
@@ -169,11 +174,9 @@ def _beam_refine(pts: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Centre and tilt so that each beam's points share one elevation (robust least squares)."""
     from scipy.optimize import least_squares
 
-    from dsnet_core.sensor.estimate import _beams
-
     for _ in range(2):
         el = _elevations(pts, v, near=3.0)
-        beams = _beams(el)
+        beams = beam_peaks(el)
         if beams.size < 2:
             return v
         neg = -beams

@@ -227,3 +227,70 @@ def test_adapt_a_tiny_unlabelled_log_then_relabel_infer_onward(tmp_path, cli_env
     for s in LABEL_STAGES[2:]:  # the new model: infer onward recomputed
         assert after[s].fingerprint != before[s].fingerprint and after[s].status == "done", s
     assert after["infer"].config["checkpoint"] == str(out)
+
+
+def test_like_and_sensor_card_refusals_are_one_line(tmp_path):
+    log = write_tiny_log(tmp_path / "log", frames=2, n=500)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("card: 1\nbeams: 0\n")
+    base = ["adapt", str(log), "--out", str(tmp_path / "out")]
+    for extra, message in (
+        (["--sensor-card", str(bad)], "bad.yaml: beams: Input should be greater than or equal to 1, got 0"),
+        (["--sensor-card", str(tmp_path / "none.yaml")], "cannot read the sensor card"),
+        (["--like", str(log), "--sensor-card", str(bad)], "--like and --sensor-card both name"),
+        (["--like", str(log), "--source-log", str(log)], "--like renders the synthetic source stream"),
+    ):
+        res = CliRunner().invoke(app, [*base, *extra])
+        assert res.exit_code == 2, res.output
+        assert message in res.output and res.output.count("\n") <= 2, res.output
+        assert not (tmp_path / "out" / "card.json").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_adapt_renders_its_source_stream_like_a_log_and_a_resume_keeps_it(tmp_path):
+    """A tiny adaptation whose synthetic source stream is rendered with a sensor card: the card is
+    recorded in the adapted checkpoint (and the stream's record); resuming with another --like, or
+    with the card edited, is refused in one line."""
+    from dsnet_core.io.formats import open_log
+    from dsnet_core.sensor import estimate_sensor
+    from dsnet_core.synth import generate_log
+
+    sensor_log = tmp_path / "sensor_log"
+    generate_log(sensor_log, sequences=1, frames=2, seed=5, sensor="vlp16")
+    card = estimate_sensor(open_log(sensor_log), sensor_log, name="team-vlp16").card
+    card_path = card.save(tmp_path / "team.yaml")
+    labelled = write_tiny_log(tmp_path / "labelled", frames=2, n=1500)
+    fixes = corrections(labelled, tmp_path / "fixes", ["000000", "000001"])
+    target = unlabelled(write_tiny_log(tmp_path / "target", frames=2, n=1500))
+    parent = make_checkpoint(tmp_path / "parent", seed=3)  # random weights: the corrections train
+    out = tmp_path / "adapted"
+    common = [
+        str(target), "--out", str(out), "--from", str(parent), "--labels", str(fixes), "--rounds", "1",
+        "--steps", "2", "--epochs", "1", "--clusterer", FAST_SHIFT, "--stream-workers", "0",
+    ]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(
+        cli("adapt", *common, "--sensor-card", str(card_path)),
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=800,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    data = json.loads((out / "card.json").read_text())["training_data"]
+    recorded = data["adapt"]["source_sensor"]
+    assert recorded["option"] == "--sensor-card" and recorded["path"] == str(card_path.resolve())
+    assert recorded["card"] == card.model_dump(mode="json")
+    assert data["source"]["stream"]["sensor_card"]["name"] == "team-vlp16"
+
+    other = subprocess.run(
+        cli("adapt", *common, "--like", str(sensor_log), "--resume"),
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert other.returncode == 2
+    assert f"the source stream's LiDAR: --sensor-card {card_path.resolve()} → --like" in other.stderr
+    card.model_copy(update={"mount_height_m": 2.5}).save(card_path)
+    edited = subprocess.run(
+        cli("adapt", *common, "--sensor-card", str(card_path), "--resume"),
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert edited.returncode == 2 and "its sensor changed since the adaptation started" in edited.stderr
+    assert other.stderr.strip().count("\n") == 0 and edited.stderr.strip().count("\n") == 0

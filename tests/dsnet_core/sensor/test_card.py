@@ -58,6 +58,9 @@ def test_a_card_survives_yaml_and_becomes_a_spec(tmp_path):
         ({"colour": "red"}, "colour: unknown key (see docs/sensor.md for the card's keys)"),
         ({"elevations_deg": [2.0, -5.0]}, "card: elevations_deg holds 2 angles for 3 beams"),
         ({"ray_drop": {**_card()["ray_drop"], "speed": 1}}, "ray_drop.speed: unknown key"),
+        ({"origin": {"xyz_m": [0.0, 0.0, 250.0]}}, "origin.xyz_m: entry 2 is 250.0 m, outside ±100 m"),
+        ({"origin": {"roll_deg": 60}}, "origin.roll_deg: Input should be less than or equal to 45, got 60"),
+        ({"origin": {"yaw_deg": 1}}, "origin.yaw_deg: unknown key"),
     ],
 )
 def test_a_bad_card_is_one_line_naming_the_file_and_key(tmp_path, edit, line):

@@ -235,7 +235,7 @@ def fit_origin(points: np.ndarray, max_points: int = 20_000, seed: int = 0) -> O
         return OriginFit(SensorOrigin(), s0, s0, moved=False, exact=True)
     v, _ = _coordinate_search(xyz, zero)
     best_v, best_s = _nelder_mead(xyz, v)
-    if best_s < GAIN * s0:
+    if best_s <= max(GAIN * s0, 1e-9):  # (0 for a scan without 50 points 4–80 m away)
         return OriginFit(SensorOrigin(), s0, s0, moved=False)
     v = _beam_refine(xyz, best_v)
     s = _hist_sharpness(_elevations(xyz, v))

@@ -80,3 +80,9 @@ def test_the_sensor_estimated_from_a_moved_log_is_the_same(logs):
     assert abs(moved.mount_roll_deg) < 0.3 and abs(moved.mount_pitch_deg) < 0.3  # level, from the sensor
     assert moved.azimuth_steps == spec.azimuth_steps
     assert moved.not_estimated == {}
+
+
+def test_too_few_points_keep_the_log_origin():
+    pts = np.random.default_rng(0).uniform(-3.0, 3.0, (40, 4))  # nothing 4–80 m away
+    fit = fit_origin(pts)
+    assert not fit.moved and fit.origin == SensorOrigin() and fit.sharpness == 0.0

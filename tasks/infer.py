@@ -49,6 +49,12 @@ class InferConfig(StageConfig):
         argmax: ``labelled`` (default): a point's class is the argmax over the classes without
             "unlabelled"; ``all``: over every class, the reference DS-Net's rule (reproducing its
             published numbers with an imported checkpoint; points may then be labelled 0).
+        match: ``none`` (default): the network reads the log's clouds as they are; ``ground``,
+            ``remission``, ``both``: each cloud moved toward the sensor the model was trained on
+            (its card's sensor reference, :mod:`dsnet_core.model.sensor_match`) before the network
+            reads it: the ground under the origin to the training sensor's height, the remission
+            onto the training quantiles by rank. The stored points and every later stage keep the
+            log's frame.
     """
 
     checkpoint: str | None = None
@@ -58,14 +64,17 @@ class InferConfig(StageConfig):
     tta_flip: bool = False
     equivariant: int | None = Field(None, ge=1)
     argmax: Literal["labelled", "all"] = "labelled"
+    match: Literal["none", "ground", "remission", "both"] = "none"
 
     @model_serializer(mode="wrap")
-    def _default_argmax_unrecorded(self, handler):
-        """The default rule is left out of the record, so runs made before the setting existed
-        keep their fingerprint (and are not recomputed)."""
+    def _defaults_unrecorded(self, handler):
+        """The default rule and match are left out of the record, so runs made before the settings
+        existed keep their fingerprint (and are not recomputed)."""
         data = handler(self)
         if data.get("argmax") == "labelled":
             data.pop("argmax")
+        if data.get("match") == "none":
+            data.pop("match")
         return data
 
 
@@ -195,6 +204,9 @@ class InferStage(Stage):
                 "label with its n, or train one with this n (dsnet train dsnet --equivariant N)"
             )
         check_inputs(ctx, cfg.input_spec, path)
+        from dsnet_core.model.inference import sensor_match
+
+        sensor_match(path, card, ctx.config.match)  # a card without a reference is refused before any block
         return Plan(
             n_items=align.n_items,
             max_points=int(align.plan["max_points"]),
@@ -214,6 +226,7 @@ class InferStage(Stage):
             expect_label_map=label_map,
             tta=TTAConfig(rotations=ctx.config.tta, flip=ctx.config.tta_flip),
             argmax=ctx.config.argmax,
+            match=ctx.config.match,
         )
         align = ctx.arrays("align")
         thing = label_map.is_thing()

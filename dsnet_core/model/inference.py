@@ -3,9 +3,10 @@ prediction, probabilities, offsets and instance features."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -15,6 +16,9 @@ from dsnet_core.labels import LabelMap
 from dsnet_core.model.checkpoint import ModelCard, load_checkpoint
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.tta import TTAConfig, tta_forward
+
+if TYPE_CHECKING:
+    from dsnet_core.model.sensor_match import SensorMatch
 
 ARGMAX_RULES = ("labelled", "all")
 """How a point's class is taken from its logits (:class:`Predictor`'s ``argmax``)."""
@@ -57,6 +61,28 @@ class StoredResult:
     kept: np.ndarray
 
 
+def sensor_match(path: str | Path, card: ModelCard, mode: str) -> SensorMatch | None:
+    """The ``match`` transform of checkpoint ``path`` (None for ``"none"``).
+
+    Raises:
+        ConfigError: an unknown mode, or a card without ``training_data.sensor_reference``.
+    """
+    from dsnet_core.errors import ConfigError
+    from dsnet_core.model.sensor_match import MATCH_MODES, SensorMatch, card_reference
+
+    if mode not in MATCH_MODES:
+        raise ConfigError(f"--match {mode!r}: choose one of {', '.join(MATCH_MODES)}")
+    if mode == "none":
+        return None
+    ref = card_reference(card.training_data or {}, f"{path}/card.json")
+    if ref is None:
+        raise ConfigError(
+            f"--match {mode}: checkpoint {path} records no sensor reference (training_data.sensor_reference "
+            "in its card; `dsnet train` writes it): label it without --match"
+        )
+    return SensorMatch(ref, mode)
+
+
 def quantise(probs: torch.Tensor) -> torch.Tensor:
     """Probabilities in [0, 1] → uint8 ``round(p * 255)`` (a new tensor)."""
     return probs.to(torch.float32, copy=True).mul_(255.0).round_().clamp_(0, 255).to(torch.uint8)
@@ -76,6 +102,9 @@ class Predictor:
             0 ("unlabelled") is never predicted; ``"all"``: over every class 0..C-1, the reference
             DS-Net's ``calc_sem_label`` (to reproduce its published numbers with an imported
             checkpoint; 0.4–0.7 % of points differ with random weights).
+        match: a transform of each cloud toward the training sensor
+            (:class:`~dsnet_core.model.sensor_match.SensorMatch`) applied before the network reads
+            it; None reads the clouds as given. Results stay per point of the given cloud.
     """
 
     def __init__(
@@ -86,6 +115,7 @@ class Predictor:
         threads: int | None = 1,
         tta: TTAConfig | None = None,
         argmax: str = "labelled",
+        match: Callable[[np.ndarray], np.ndarray] | None = None,
     ):
         if argmax not in ARGMAX_RULES:
             raise ValueError(f"argmax must be one of {ARGMAX_RULES}, got {argmax!r}")
@@ -96,6 +126,7 @@ class Predictor:
         self.model = model.to(self.device).eval()
         self.card = card
         self.tta = tta or TTAConfig()
+        self.match = match
 
     @classmethod
     def from_checkpoint(
@@ -106,10 +137,17 @@ class Predictor:
         expect_label_map: LabelMap | None = None,
         tta: TTAConfig | None = None,
         argmax: str = "labelled",
+        match: str = "none",
     ) -> Predictor:
-        """Load a checkpoint folder (verified, see :func:`load_checkpoint`)."""
+        """Load a checkpoint folder (verified, see :func:`load_checkpoint`); ``match`` (one of
+        :data:`~dsnet_core.model.sensor_match.MATCH_MODES`) toward its card's sensor reference.
+
+        Raises:
+            ConfigError: ``match`` asked of a card that records no sensor reference.
+        """
         model, card = load_checkpoint(path, device=device, expect_label_map=expect_label_map)
-        return cls(model, card, device=device, threads=threads, tta=tta, argmax=argmax)
+        transform = sensor_match(path, card, match)
+        return cls(model, card, device=device, threads=threads, tta=tta, argmax=argmax, match=transform)
 
     @property
     def num_classes(self) -> int:
@@ -173,6 +211,8 @@ class Predictor:
                 raise DataFormatError(
                     f"<cloud {i}>", f"expected finite float (N, 4) points, got shape {arr.shape}"
                 )
+            if self.match is not None and arr.shape[0] > 0:
+                arr = self.match(arr)
             tensors.append(torch.as_tensor(arr[:, :4], dtype=torch.float32, device=self.device))
         nonempty = [t for t in tensors if t.shape[0] > 0]
         with torch.inference_mode():

@@ -119,6 +119,25 @@ def class_counts(reader: LogReader, volumes: list[list[FrameRef]], label_map: La
     return counts
 
 
+REFERENCE_SCANS = 32
+"""At most this many training scans (evenly spaced over the volumes) make a card's sensor reference."""
+
+
+def training_reference(reader: LogReader, volumes: list[list[FrameRef]]) -> dict | None:
+    """The card's ``sensor_reference`` (:func:`dsnet_core.model.sensor_match.reference_of`) over the
+    reference scans of at most :data:`REFERENCE_SCANS` of ``volumes``; None when they have no
+    ground near the sensor."""
+    from dsnet_core.model.sensor_match import reference_of
+
+    if not volumes:
+        return None
+    pick = np.unique(np.linspace(0, len(volumes) - 1, min(REFERENCE_SCANS, len(volumes))).round().astype(int))
+    try:
+        return reference_of(reader.scan(volumes[i][-1]) for i in pick).to_dict()
+    except ValueError:
+        return None
+
+
 def data_fingerprint(reader: LogReader, volumes: list[list[FrameRef]]) -> str:
     """sha256 over the names, sizes and first 64 KiB of every scan and label file used."""
     h = hashlib.sha256()

@@ -42,7 +42,15 @@ from dsnet_core.model.losses import (
 from dsnet_core.model.network import DSNet, NetOutput, lift_model
 from dsnet_core.model.presets import ModelConfig
 from dsnet_core.train import distributed
-from dsnet_core.train.data import Sample, augment, class_counts, data_fingerprint, load_sample, volume_refs
+from dsnet_core.train.data import (
+    Sample,
+    augment,
+    class_counts,
+    data_fingerprint,
+    load_sample,
+    training_reference,
+    volume_refs,
+)
 from dsnet_core.train.finetune import early_stop, holdout_split, stage_start, volume_name
 from dsnet_core.train.metrics import ConfusionMeter
 from dsnet_core.train.real import REAL_STREAM, RealData, centres_of, same_real
@@ -277,10 +285,11 @@ class Trainer(TrainerSkeleton):
     def _new_card(self, sequences: list[str], val_sequences: list[str], source: dict | None) -> ModelCard:
         """The card of a new run: the data it trains and validates on and where it started."""
         reader, stream = self.reader, isinstance(self.reader, StreamLog)
-        counts, fingerprint = self.dist.from_main(  # every training file read once, on rank 0
+        counts, fingerprint, reference = self.dist.from_main(  # every training file read once, on rank 0
             lambda: (
                 class_counts(reader, self.train_vols, self.label_map),
                 reader.fingerprint() if stream else data_fingerprint(reader, self.train_vols),
+                training_reference(reader, self.train_vols),
             )
         )
         return ModelCard(
@@ -293,6 +302,7 @@ class Trainer(TrainerSkeleton):
                 "scans": self.cfg.scans,
                 "fingerprint": fingerprint,
                 "class_points": counts.tolist(),
+                **({"sensor_reference": reference} if reference else {}),
                 "val_root": str(self.val_reader.root),
                 "val_sequences": list(val_sequences),
                 "frames": [volume_name(v) for v in self.train_vols],

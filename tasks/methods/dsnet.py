@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from dsnet_core import checkpoints as ckpt
 from tasks.methods.base import (
@@ -42,6 +42,12 @@ class DsnetSettings(TemporalSettings):
     tta: int = option(1, "Average the semantics over N yaw rotations (1: off).", MODEL, ge=1, le=64)
     tta_flip: bool = option(False, "With --tta: their mirror images too.", MODEL)
     equivariant: int | None = option(None, "Require a C_n-equivariant checkpoint of this n.", MODEL, ge=1)
+    match: Literal["none", "ground", "remission", "both"] = option(
+        "none",
+        "Move each cloud toward the model's training sensor before the network reads it: ground "
+        "height under the origin, remission quantiles by rank, or both (docs/sensor_match.md).",
+        MODEL,
+    )
 
 
 class Dsnet(Method):
@@ -58,6 +64,7 @@ class Dsnet(Method):
         "tta": ("infer.tta", "infer.tta_flip"),
         "tta_flip": ("infer.tta", "infer.tta_flip"),
         "clusterer": ("shift.clusterer",),
+        "match": ("infer.match",),
     }
     TrainOptions = DsnetTrainOptions
     data_parallel = True
@@ -103,6 +110,8 @@ class Dsnet(Method):
             infer.update(tta=settings.tta, tta_flip=settings.tta_flip)
         if settings.equivariant is not None:
             infer["equivariant"] = settings.equivariant
+        if settings.match != "none":
+            infer["match"] = settings.match
         if infer:
             stages["infer"] = infer
         if settings.clusterer:

@@ -27,6 +27,7 @@ SAMPLES = {  # a value other than the default of every setting a bundled method 
     "tta": [3],
     "tta_flip": [True],
     "equivariant": [4],
+    "match": ["both"],
     "semantic_prior": ["/prior"],
     "temporal": ["track"],
     "refine": [False],
@@ -120,7 +121,7 @@ def _refused(args: list[str], monkeypatch) -> str:
 
 REFUSED = [  # (config file text or None, --set entries, the error line; FILE: the file's path)
     (None, ["infer.ttx=2"], "--set infer.ttx=2: not a setting of stage infer (its settings: checkpoint, "
-     "device, batch, tta, tta_flip, equivariant, argmax)"),
+     "device, batch, tta, tta_flip, equivariant, argmax, match)"),
     (None, ["infer.tta=0"], "--set infer.tta=0: Input should be greater than or equal to 1"),
     (None, ["inferr.tta=2"], "--set inferr.tta=2: no stage 'inferr' in method dsnet (stages: ingest, "
      "align, infer, shift, fuse, stitch, refine, score)"),

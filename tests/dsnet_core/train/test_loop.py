@@ -141,6 +141,11 @@ def test_fine_tune_starts_a_new_card_from_another_checkpoint(log, tmp_path):
     source = card.training_data["init_from"]
     assert source["weights_sha256"] == parent_card.weights_sha256 and source["epochs"] == {"semantic": 1}
     assert card.training_data["scans"] == 2
+    # the training sensor, for `label --match` (the test log: dsnet synth's hdl64, 1.73 m up)
+    from dsnet_core.model.sensor_match import SensorReference
+
+    ref = SensorReference.from_dict(card.training_data["sensor_reference"], "card")
+    assert ref.ground == pytest.approx(-1.73, abs=0.05) and 0 < ref.remission[50] < 1
     child, _ = load_checkpoint(tmp_path / "4d")
     before, after = parent.state_dict(), child.state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before if not k.startswith("ins_head."))

@@ -67,6 +67,18 @@ ROWS: dict[str, Row] = {
     "dsnet-k1-tta4": Row("DS-Net k=1 + track, --tta 4", "dsnet", 1, {"temporal": "track"}, {"tta": 4}),
     "dsnet-k1-tta8": Row("DS-Net k=1 + track, --tta 8", "dsnet", 1, {"temporal": "track"}, {"tta": 8}),
     "dsnet-k2-tta4": Row("4D-DS-Net k=2 + stitch, --tta 4", "dsnet", 2, {"temporal": "stitch"}, {"tta": 4}),
+    "dsnet-k1-ground": Row(
+        "DS-Net k=1 + track, --match ground", "dsnet", 1, {"temporal": "track"}, {"match": "ground"}
+    ),
+    "dsnet-k1-both": Row(
+        "DS-Net k=1 + track, --match both", "dsnet", 1, {"temporal": "track"}, {"match": "both"}
+    ),
+    "dsnet-k2-ground": Row(
+        "4D-DS-Net k=2 + stitch, --match ground", "dsnet", 2, {"temporal": "stitch"}, {"match": "ground"}
+    ),
+    "dsnet-k2-both": Row(
+        "4D-DS-Net k=2 + stitch, --match both", "dsnet", 2, {"temporal": "stitch"}, {"match": "both"}
+    ),
     "eq4-k1-track": Row(
         "Eq-4D n=4 (tiny lifted, instance head 1 epoch) k=1 + track",
         "dsnet",

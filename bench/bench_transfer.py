@@ -130,6 +130,10 @@ ROWS = {
     "k1-tta4": ("dsnet-k1-tta4", 1),
     "k2": ("dsnet-k2-stitch", 2),
     "k2-tta4": ("dsnet-k2-tta4", 2),
+    "k1-ground": ("dsnet-k1-ground", 1),  # --match (docs/sensor_match.md)
+    "k1-both": ("dsnet-k1-both", 1),
+    "k2-ground": ("dsnet-k2-ground", 2),
+    "k2-both": ("dsnet-k2-both", 2),
 }
 METRICS = ("miou", "pq", "pq_things", "pq_stuff", "lstq")
 TOP = 3  # wrong classes listed per ground-truth class

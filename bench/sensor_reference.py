@@ -11,7 +11,6 @@ Run: ``.venv/bin/python bench/sensor_reference.py dsnet_core/data/models/tiny-v2
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from dsnet_core.model.checkpoint import read_card, write_card
 from dsnet_core.train.data import training_reference

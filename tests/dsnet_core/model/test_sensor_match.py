@@ -34,7 +34,7 @@ def _street(ground: float, seed: int = 0, n: int = 30000) -> np.ndarray:
     pts = [np.column_stack([g, np.full(n, ground)])]
     box = rng.uniform([7, 2, ground], [11, 4, ground + 1.5], (2000, 3))
     ego = rng.uniform([-1.5, -1, 0.3], [1.5, 1, 1.5], (1500, 3))
-    xyz = np.concatenate(pts + [box, ego])
+    xyz = np.concatenate([*pts, box, ego])
     rem = rng.integers(0, 26, len(xyz)) / 255.0
     return np.column_stack([xyz, rem]).astype(np.float32)
 
@@ -83,7 +83,9 @@ def test_remission_match_depends_only_on_the_order_of_the_values():
 
 
 def test_mid_rank_values_with_ties():
-    np.testing.assert_array_equal(mid_rank(np.array([3.0, 1.0, 1.0, 2.0, 5.0])), [0.75, 0.125, 0.125, 0.5, 1.0])
+    np.testing.assert_array_equal(
+        mid_rank(np.array([3.0, 1.0, 1.0, 2.0, 5.0])), [0.75, 0.125, 0.125, 0.5, 1.0]
+    )
     np.testing.assert_array_equal(mid_rank(np.array([7.0])), [0.5])
     np.testing.assert_array_equal(mid_rank(np.full(4, 0.2)), [0.5] * 4)
 

@@ -114,6 +114,14 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
             f"method {method.name} cannot be adapted (its network has no semantic head to self-train)"
         )
     torch.set_num_threads(options.threads)
+    if options.resume:  # an epoch a kill left committed but not moved: its card is the one to check
+        from dsnet_core.model.card import CARD
+        from dsnet_core.train import commit
+        from tasks.methods.resume import refuse_lost_card
+
+        commit.recover(options.out)
+        if not (options.out / CARD).is_file():
+            refuse_lost_card(options.out)
     parent = _parent(options, method)
     card = read_card(parent)
     label_map = label_map_from_class_map(card.class_map)

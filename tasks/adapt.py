@@ -109,6 +109,7 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     Raises:
         DsnetError, ValueError: bad logs, checkpoints or settings, each naming what is wrong.
     """
+    from dsnet_core.io.formats import open_log
     from dsnet_core.model.card import read_card
 
     method = get_method(options.method)
@@ -133,14 +134,18 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
         clusterer=options.clusterer,
         estimate_poses=options.estimate_poses,
     )
-    # the teacher's options before torch, the logs and the sources are opened (seconds)
+    # the teacher's options and the logs before torch and the sources are imported (seconds)
     _check_teacher_stages(method, settings, parent)
+    reader_options: dict = {}  # adapt takes no reader options: the teacher records the same
+    logs = [open_log(str(p), options=reader_options) for p in options.logs]
+    if len({str(r.root) for r in logs}) < len(logs):
+        raise ValueError("a target log is given twice")
+    _check_resumed_logs(options, logs, method.name)
 
     import torch
 
     from dsnet_core.adapt import AdaptConfig, SelectionParams
     from dsnet_core.adapt.trainer import AdaptTrainer
-    from dsnet_core.io.formats import open_log
     from dsnet_core.labels import label_map_from_class_map
     from tasks.adapt_sources import corrected_frames, source_scans
     from tasks.adapt_teacher import TeacherLabeller
@@ -148,11 +153,6 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     torch.set_num_threads(options.threads)
     card = read_card(parent)
     label_map = label_map_from_class_map(card.class_map)
-    reader_options: dict = {}  # adapt takes no reader options: the teacher records the same
-    logs = [open_log(str(p), options=reader_options) for p in options.logs]
-    if len({str(r.root) for r in logs}) < len(logs):
-        raise ValueError("a target log is given twice")
-    _check_resumed_logs(options, logs, method.name)
     cfg = AdaptConfig(
         rounds=options.rounds,
         steps=options.steps,

@@ -65,6 +65,7 @@ def method_command(method):
                 raise ValueError(
                     f"{method.name} trains in one process: run it without torchrun (or --nproc_per_node 1)"
                 )
+            options.check_paths()  # before torch and the trainer are imported
             with writing_folder(options.out, f"dsnet train {method.name}"):
                 check_train_resume(options)
                 line = _run(method, options)

@@ -48,6 +48,12 @@ def check_train_resume(options: Any, command: str = "dsnet train") -> None:
         return
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun the main process owns the folder
         commit.recover(out)  # the card of the last committed epoch
+    else:  # the other ranks read the card once rank 0 has finished a killed epoch's moves
+        import time
+
+        deadline = time.monotonic() + 60
+        while (out / commit.PENDING / commit.COMMIT).exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
     if not (out / CARD).is_file():
         refuse_lost_card(out)
         return

@@ -268,3 +268,42 @@ def test_an_import_killed_before_any_of_its_moves_leaves_none_or_a_complete_one(
         assert res.returncode == KILLED, res.stderr[-2000:]
         seen = _check_killed_import(out, complete, released[1], complete[1])
         assert seen == "refused", (at, seen)  # the earlier import's card goes before any move
+
+
+def test_under_torchrun_the_other_ranks_read_the_card_once_rank_0_finished_the_moves(
+    log, tmp_path, monkeypatch
+):
+    """A resume after a kill between an epoch's commit and its moves: rank 0 rolls the epoch forward;
+    a rank ≠ 0 reading the card meanwhile would be refused (the folder mixes two epochs), so it
+    waits for the moves to end, then checks the resume as rank 0 does."""
+    import os
+    import threading
+    import time
+
+    from tasks.methods import get_method
+    from tasks.methods.resume import check_train_resume
+
+    out = tmp_path / "ck"
+    args = ("semantic=1", "semantic")
+    code, text = invoke(*_train_args(log, out, *args))
+    assert code == 0, text
+    pending = out / ".pending"
+    pending.mkdir()
+    os.replace(out / "card.json", pending / "card.json")
+    (pending / "COMMIT").write_text(json.dumps(["card.json"]))
+
+    def rank_0_rolls_forward() -> None:
+        time.sleep(0.5)
+        os.replace(pending / "card.json", out / "card.json")
+        shutil.rmtree(pending)
+
+    mover = threading.Thread(target=rank_0_rolls_forward)
+    mover.start()
+    monkeypatch.setenv("RANK", "1")
+    options = get_method("dsnet").TrainOptions(
+        data=log, out=out, stage="semantic", epochs="semantic=1", grid="24,32,8", threads=1, lr=0.01,
+        augment=False, resume=True,
+    )  # fmt: skip
+    check_train_resume(options)  # no "an epoch is being saved here" refusal
+    mover.join()
+    assert not pending.exists() and read_card(out).epochs == {"semantic": 1}

@@ -12,7 +12,8 @@ from three task reports:
   with ``--on-error fail``: with ``skip`` a bad frame is quarantined, not refused. Other frames are
   read by ingest (a whole-log check would read every scan twice);
 - a semantics-only checkpoint (an imported Cylinder3D network), whose instance head is untrained:
-  refused for instance labelling, saying how to train the head.
+  refused for instance labelling, saying how to train the head; a checkpoint whose weights (or
+  shifting weights) are missing or not the ones its card records (their sha256), naming the file.
 """
 
 from __future__ import annotations
@@ -71,11 +72,12 @@ def check_checkpoint(stages: dict[str, dict[str, Any]]) -> None:
     if not path:
         return
     from dsnet_core.errors import CheckpointError
-    from dsnet_core.model.card import CARD, card_json
+    from dsnet_core.model.card import CARD, card_json, check_card_files
 
     card = Path(path) / CARD
     if not card.is_file():
         return  # the stage config's own checks name a missing card
+    check_card_files(path)  # damaged or lost weights: one line now, not a failed infer stage later
     imported = (card_json(path).get("training_data") or {}).get("imported") or {}
     if imported.get("semantic_only"):
         raise CheckpointError(

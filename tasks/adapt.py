@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from tasks.methods import DEFAULT_METHOD, LabelSettings, get_method
 from tasks.methods.base import StepCallback, check_device
@@ -79,6 +79,17 @@ class AdaptOptions(BaseModel):
     def valid_device(cls, value: str) -> str:
         return check_device(value) or "cpu"
 
+    @field_validator("epochs")
+    @classmethod
+    def steps_cover_epochs(cls, value: int, info: ValidationInfo) -> int:
+        """Refused here, before torch is imported (``AdaptConfig`` checks it again)."""
+        steps = info.data.get("steps")
+        if steps is not None and steps < value:
+            raise ValueError(
+                f"adapt needs steps ≥ epochs (a student step per epoch at least), got --steps {steps}"
+            )
+        return value
+
     def names(self, text: str | None) -> tuple[str, ...] | None:
         return tuple(v.strip() for v in text.split(",") if v.strip()) if text else None
 
@@ -106,31 +117,51 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     Raises:
         DsnetError, ValueError: bad logs, checkpoints or settings, each naming what is wrong.
     """
-    import torch
-
-    from dsnet_core.adapt import AdaptConfig, SelectionParams
-    from dsnet_core.adapt.trainer import AdaptTrainer
     from dsnet_core.io.formats import open_log
-    from dsnet_core.labels import label_map_from_class_map
     from dsnet_core.model.card import read_card
-    from tasks.adapt_sources import corrected_frames, source_scans
-    from tasks.adapt_teacher import TeacherLabeller
 
     method = get_method(options.method)
     if not method.adaptable:
         raise ValueError(
             f"method {method.name} cannot be adapted (its network has no semantic head to self-train)"
         )
-    torch.set_num_threads(options.threads)
+    if options.resume:  # an epoch a kill left committed but not moved: its card is the one to check
+        from dsnet_core.model.card import CARD, check_card_files
+        from dsnet_core.train import commit
+        from tasks.methods.resume import refuse_lost_card
+
+        commit.recover(options.out)
+        if not (options.out / CARD).is_file():
+            refuse_lost_card(options.out)
+        else:  # before round R's teacher is copied from them (a copy's error would name the copy)
+            check_card_files(options.out)
     parent = _parent(options, method)
-    card = read_card(parent)
-    label_map = label_map_from_class_map(card.class_map)
+    settings = LabelSettings(
+        scans=options.scans,
+        device=options.device,
+        clusterer=options.clusterer,
+        estimate_poses=options.estimate_poses,
+    )
+    # the teacher's options and the logs before torch and the sources are imported (seconds)
+    _check_teacher_stages(method, settings, parent)
     reader_options: dict = {}  # adapt takes no reader options: the teacher records the same
     logs = [open_log(str(p), options=reader_options) for p in options.logs]
     if len({str(r.root) for r in logs}) < len(logs):
         raise ValueError("a target log is given twice")
     sensor = source_sensor(options)
     _check_resumed_logs(options, logs, method.name, sensor)
+
+    import torch
+
+    from dsnet_core.adapt import AdaptConfig, SelectionParams
+    from dsnet_core.adapt.trainer import AdaptTrainer
+    from dsnet_core.labels import label_map_from_class_map
+    from tasks.adapt_sources import corrected_frames, source_scans
+    from tasks.adapt_teacher import TeacherLabeller
+
+    torch.set_num_threads(options.threads)
+    card = read_card(parent)
+    label_map = label_map_from_class_map(card.class_map)
     cfg = AdaptConfig(
         rounds=options.rounds,
         steps=options.steps,
@@ -148,13 +179,6 @@ def run_adapt(options: AdaptOptions, on_step: StepCallback | None = None, on_lab
     params = SelectionParams(
         keep=options.keep, min_confidence=options.min_confidence, max_confidence=options.max_confidence
     )
-    settings = LabelSettings(
-        scans=options.scans,
-        device=options.device,
-        clusterer=options.clusterer,
-        estimate_poses=options.estimate_poses,
-    )
-    _check_teacher_stages(method, settings, parent)
     train, heldout, exclude = corrected_frames(options, logs, cfg)
     source, probe = source_scans(
         options, card, cfg, math.ceil(cfg.steps_in(0) / 2), sensor.card if sensor else None

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file
 
 from dsnet_core.adapt import stopping
@@ -37,7 +38,7 @@ from dsnet_core.adapt.ema import ema_update
 from dsnet_core.adapt.losses import adapt_loss
 from dsnet_core.adapt.mixing import mix_pair
 from dsnet_core.adapt.source import Source, cycled
-from dsnet_core.errors import ConfigError
+from dsnet_core.errors import CheckpointError, ConfigError
 from dsnet_core.labels import LabelMap
 from dsnet_core.model.bundle import SHIFT_WEIGHTS
 from dsnet_core.model.checkpoint import (
@@ -48,6 +49,7 @@ from dsnet_core.model.checkpoint import (
     load_checkpoint,
     save_checkpoint,
     save_tensors,
+    sha256_file,
 )
 from dsnet_core.model.losses import class_weights
 from dsnet_core.train.metrics import ConfusionMeter
@@ -120,7 +122,7 @@ class AdaptTrainer(TrainerSkeleton):
             self.teacher, self.card = load_checkpoint(self.out, self.device, expect_label_map=label_map)
             self._check_resume()
             self.model = copy.deepcopy(self.teacher)
-            self.model.load_state_dict(load_file(str(self.out / STUDENT), device=str(self.device)))
+            self.model.load_state_dict(self._student_state())
         else:
             self.teacher, parent_card = load_checkpoint(self.parent, self.device, expect_label_map=label_map)
             if parent_card.config.prior_channels or not parent_card.config.semantic_head:
@@ -297,9 +299,30 @@ class AdaptTrainer(TrainerSkeleton):
         return meter.miou()
 
     def write_checkpoint(self, staging: Path, stage: str, extra: dict) -> None:
-        """The teacher (weights + card), the parent's shifting MLPs and the student."""
+        """The teacher (weights + card), the parent's shifting MLPs and the student (first: the
+        card records its sha256)."""
         shift = self.parent / SHIFT_WEIGHTS
         if shift.is_file():
             shutil.copyfile(shift, staging / SHIFT_WEIGHTS)
-        save_checkpoint(staging, self.teacher, self.card)
         save_tensors(self.model.state_dict(), staging / STUDENT)
+        self.card.training_data["adapt"]["student_sha256"] = sha256_file(staging / STUDENT)
+        save_checkpoint(staging, self.teacher, self.card)
+
+    def _student_state(self) -> dict[str, torch.Tensor]:
+        """The student's weights saved with the folder's last epoch, checked against the card.
+
+        Raises:
+            CheckpointError: missing, not the card's (sha256, when recorded), or unreadable.
+        """
+        file = self.out / STUDENT
+        if not file.is_file():
+            raise CheckpointError(file, "the student's weights are missing: the adaptation cannot resume")
+        recorded = self.card.training_data["adapt"].get("student_sha256")  # older cards have none
+        if recorded is not None and sha256_file(file) != recorded:
+            raise CheckpointError(
+                file, "the student's weights do not match the model card's record (damaged or half-written)"
+            )
+        try:
+            return load_file(str(file), device=str(self.device))
+        except (SafetensorError, OSError) as exc:
+            raise CheckpointError(file, f"cannot read the student's weights: {exc}") from None

@@ -76,10 +76,25 @@ def card_json(path: str | Path) -> dict:
     """The JSON object of ``CKPT/card.json`` (any method's card), unvalidated.
 
     Raises:
-        CheckpointError: no card, not JSON, or not a JSON object.
+        CheckpointError: no card, not JSON, or not a JSON object; a committed epoch not yet moved
+            into place (``.pending/COMMIT``: the folder's files may mix two epochs).
     """
     card_path = Path(path) / CARD
+    commit = Path(path) / ".pending" / "COMMIT"  # dsnet_core.train.commit's marker
+    if commit.is_file():
+        raise CheckpointError(
+            commit.parent,
+            "an epoch is being saved here, or its save was killed half-way (its files are a mix of two "
+            "epochs): wait for the training to finish, or finish the save with the same `dsnet train` "
+            "(or `dsnet adapt`) command and --resume",
+        )
     if not card_path.is_file():
+        if (Path(path) / WEIGHTS).is_file():
+            raise CheckpointError(
+                card_path,
+                f"no model card beside {WEIGHTS}: an import or a first save was stopped before its card "
+                "was written (the card is written last); rerun the command that wrote this folder",
+            )
         raise CheckpointError(card_path, "no model card (is this a checkpoint folder?)")
     try:
         data = json.loads(card_path.read_text())
@@ -88,6 +103,31 @@ def card_json(path: str | Path) -> dict:
     if not isinstance(data, dict):
         raise CheckpointError(card_path, "model card is not a JSON object")
     return data
+
+
+def check_card_files(path: str | Path) -> None:
+    """The files the card of checkpoint ``path`` records are there with its sha256: the weights and,
+    when recorded, the shifting weights. What loading finds, without torch (``dsnet label`` checks
+    it before any server starts, so a damaged checkpoint is one line, not a failed infer stage).
+
+    Raises:
+        CheckpointError: the card does not read, or a file is missing or not the card's, naming it.
+    """
+    path = Path(path)
+    data = card_json(path)
+    for name, key, what in (
+        (WEIGHTS, "weights_sha256", "weights"),
+        (SHIFT_WEIGHTS, "shift_sha256", "shifting weights"),
+    ):
+        file, recorded = path / name, data.get(key) or ""
+        if not file.is_file():
+            if recorded or name == WEIGHTS:
+                raise CheckpointError(file, f"{what} file is missing though the model card records it")
+            continue
+        if key in data and sha256_file(file) != recorded:
+            raise CheckpointError(
+                file, f"{what} do not match the model card's sha256 (tampered, damaged or half-written)"
+            )
 
 
 def read_card(path: str | Path) -> ModelCard:

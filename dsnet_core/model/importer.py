@@ -15,7 +15,14 @@ from dsnet_core.errors import CheckpointImportError
 from dsnet_core.instance.shifting import DynamicShift
 from dsnet_core.labels import LabelMap, load_label_map
 from dsnet_core.model.bundle import save_shift_weights
-from dsnet_core.model.checkpoint import ModelCard, class_map_of, save_checkpoint, sha256_file
+from dsnet_core.model.checkpoint import (
+    CARD,
+    SHIFT_WEIGHTS,
+    ModelCard,
+    class_map_of,
+    save_checkpoint,
+    sha256_file,
+)
 from dsnet_core.model.network import DSNet
 from dsnet_core.model.reference_convert import BANDWIDTHS, KINDS, convert_state
 from dsnet_core.model.reference_file import load_reference_file
@@ -86,9 +93,10 @@ def import_checkpoint(
         training_data={"description": f"imported: {_ABOUT[kind]}", "imported": summary},
     )
     out.mkdir(parents=True, exist_ok=True)
-    stale = out / "shift.safetensors"
-    if stale.exists():
-        stale.unlink()
+    # an earlier import's card goes first: until the new card lands (last) the folder holds no
+    # checkpoint, never the old card over new weights or the new shifting weights
+    for stale in (out / CARD, out / SHIFT_WEIGHTS):
+        stale.unlink(missing_ok=True)
     if shift_state:
         iterations = summary["converted"]["shifting_iterations"]
         shift = DynamicShift(bandwidths, iterations=iterations, feature_dim=config.ins_dim)

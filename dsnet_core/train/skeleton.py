@@ -49,7 +49,9 @@ from dsnet_core.train.state import load_train_state, save_train_state
 log = logging.getLogger(__name__)
 
 StepCallback = Callable[[str, int, int, int, float], None]
-"""``(stage, epoch, step, steps, loss)`` after every training step."""
+"""``(stage, epoch, step, steps, loss)`` after every training step. A callback with a ``start``
+method is also called ``start(stage, epoch, steps)`` before an epoch's first step (a progress bar
+then shows ``0/steps`` while a slow first step runs)."""
 
 
 C = TypeVar("C")
@@ -165,6 +167,16 @@ def prepare_out(out: Path, resume: bool, dist: Distributed = Distributed()) -> b
     if exists and not resume:
         raise ConfigError(f"{out} already holds a checkpoint: pass --resume, or choose another --out")
     return exists
+
+
+def architecture_width(architecture: Mapping[str, Any]) -> int | None:
+    """A card's network width: its ``width``, or its backbone's (MOST); None without one."""
+    if isinstance(architecture.get("width"), int):
+        return architecture["width"]
+    for value in architecture.values():
+        if isinstance(value, Mapping) and (found := architecture_width(value)) is not None:
+            return found
+    return None
 
 
 def write_metrics(out: Path, metrics: list[dict], columns: tuple[str, ...]) -> None:
@@ -304,6 +316,10 @@ class TrainerSkeleton(ABC):
         """
         net = self.wrap(stage) if net is None else net
         plan = self.epoch_plan(stage, epoch)
+        self.announce(stage, epoch, plan)
+        start = getattr(on_step, "start", None)
+        if start is not None:
+            start(stage, epoch + 1, plan.steps)
         self.train_modes(stage)
         dtype = AMP_DTYPES[self.step.amp]
         scaler = torch.amp.GradScaler(self.device.type, enabled=self.step.amp == "fp16")
@@ -335,6 +351,27 @@ class TrainerSkeleton(ABC):
         self.after_steps(stage)
         self.dist.sync_buffers(self.model)  # rank 0's batch-norm statistics, saved and validated
         return self.mean_loss(losses)
+
+    def announce(self, stage: str, epoch: int, plan: EpochPlan) -> None:
+        """Log what this run trains, once, before its first step (a wide network's first step on a
+        CPU can take minutes): the trainer, device, width and parameters, the epoch and its steps."""
+        if getattr(self, "_announced", False) or not self.dist.is_main:
+            return
+        self._announced = True
+        params = sum(p.numel() for p in self.model.parameters())
+        width = architecture_width(self.card.architecture)
+        log.info(
+            "training %s on %s: %s%.2f M parameters; %s epoch %d of %d: %d steps per epoch (batch %d)",
+            type(self).__name__,
+            self.device,
+            f"width {width}, " if width else "",
+            params / 1e6,
+            stage,
+            epoch + 1,
+            self.epochs_of(stage),
+            plan.steps,
+            self.step.batch_size,
+        )
 
     def mean_loss(self, losses: list[float]) -> float:
         """Mean of every rank's step losses (the same value on every rank)."""

@@ -38,12 +38,16 @@ def load_train_state(path: Path, optimizer: torch.optim.Optimizer, marker: dict)
     """Restore the optimiser if the saved state carries ``marker``; returns whether it did.
 
     Raises:
-        CheckpointError: the state files do not read, their tensors do not match the digest the
-            JSON records, or they do not fit the optimiser (never a silent mix of states).
+        CheckpointError: one of the two state files is missing, they do not read, their tensors do
+            not match the digest the JSON records, or they do not fit the optimiser (never a silent
+            mix of states, nor a silently fresh optimiser).
     """
-    if not (path / STATE_JSON).is_file() or not (path / STATE_TENSORS).is_file():
-        return False
     fix = f"delete {STATE_JSON} and {STATE_TENSORS} to resume with a fresh optimiser (not bit-identical)"
+    lost = f"optimiser state is missing, its other half is there: {fix}"  # a fresh one: a silent change
+    if not (path / STATE_JSON).is_file():
+        if (path / STATE_TENSORS).is_file():  # which epoch it holds is not known: refused
+            raise CheckpointError(path / STATE_JSON, lost)
+        return False
     try:
         meta = json.loads((path / STATE_JSON).read_text())
         if not isinstance(meta, dict):
@@ -51,7 +55,9 @@ def load_train_state(path: Path, optimizer: torch.optim.Optimizer, marker: dict)
     except (ValueError, UnicodeDecodeError) as exc:
         raise CheckpointError(path / STATE_JSON, f"optimiser state is damaged ({exc}): {fix}") from None
     if meta.get("marker") != marker:
-        return False
+        return False  # another stage's (or epoch's) state: not needed
+    if not (path / STATE_TENSORS).is_file():
+        raise CheckpointError(path / STATE_TENSORS, lost)
     recorded = meta.get("tensors_sha256")  # states written before it was recorded have none
     if recorded is not None and sha256_file(path / STATE_TENSORS) != recorded:
         raise CheckpointError(path / STATE_TENSORS, f"optimiser state does not match its record: {fix}")

@@ -64,6 +64,7 @@ def _run(options) -> str:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from flows.commands.train import StepBars
     from tasks.adapt import run_adapt
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
@@ -77,9 +78,4 @@ def _run(options) -> str:
                 tasks[r, what] = bar.add_task(f"round {r} {what}", total=max(total, 1), loss="")
             bar.update(tasks[r, what], completed=done, total=max(total, 1))
 
-        def on_step(stage: str, epoch: int, step: int, total: int, value: float) -> None:
-            if (stage, epoch) not in tasks:
-                tasks[stage, epoch] = bar.add_task(f"{stage} epoch {epoch}", total=total, loss="")
-            bar.update(tasks[stage, epoch], completed=step, loss=f"loss {value:.4f}")
-
-        return run_adapt(options, on_step, on_label)
+        return run_adapt(options, StepBars(bar), on_label)

@@ -97,6 +97,11 @@ def busy_line(out: Path, holder: dict) -> str:
     )
 
 
+IMPORT_FILES = frozenset({"card.json", "model.safetensors", "shift.safetensors"})
+"""What ``import-checkpoint`` writes (a killed import may leave its weights without their card, and
+a ``NAME.tmp`` it was writing)."""
+
+
 def check_import_target(out: Path) -> str | None:
     """What ``import-checkpoint`` may write over: nothing but an earlier import, which it replaces
     whole (weights, shifting weights, card).
@@ -115,6 +120,16 @@ def check_import_target(out: Path) -> str | None:
     if not (out / CARD).is_file():
         if (out / PENDING).exists():
             raise ConfigError(f"{out} holds a training run's unfinished epoch: import into another --out")
+        others = sorted(
+            p.name for p in out.iterdir()
+            if not p.name.startswith(".") and p.name.removesuffix(".tmp") not in IMPORT_FILES
+        ) if out.is_dir() else []  # fmt: skip
+        if others:  # a training or adaptation folder whose card was lost: not an earlier import
+            raise ConfigError(
+                f"{out} holds {', '.join(others[:4])}{' …' if len(others) > 4 else ''} but no model card: "
+                "not an earlier import (importing would leave them beside the import's files); import "
+                "into another --out"
+            )
         return None
     data = card_json(out).get("training_data") or {}
     imported = data.get("imported")

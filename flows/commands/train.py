@@ -65,6 +65,7 @@ def method_command(method):
                 raise ValueError(
                     f"{method.name} trains in one process: run it without torchrun (or --nproc_per_node 1)"
                 )
+            options.check_paths()  # before torch and the trainer are imported
             with writing_folder(options.out, f"dsnet train {method.name}"):
                 check_train_resume(options)
                 line = _run(method, options)
@@ -93,16 +94,25 @@ def _run(method, options) -> str:
     if rank != 0:
         return method.train(options)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
-    loss = TextColumn("loss {task.fields[loss]:.4f}")
+    loss = TextColumn("{task.fields[loss]}")
     with Progress(*columns, loss, TimeElapsedColumn(), console=Console(stderr=True)) as bar:
-        tasks: dict = {}
+        return method.train(options, StepBars(bar))
 
-        def on_step(stage: str, epoch: int, step: int, total: int, value: float) -> None:
-            if (stage, epoch) not in tasks:
-                tasks[stage, epoch] = bar.add_task(f"{stage} epoch {epoch}", total=total, loss=value)
-            bar.update(tasks[stage, epoch], completed=step, loss=value)
 
-        return method.train(options, on_step)
+class StepBars:
+    """A training's step callback: one progress bar per stage and epoch, shown at ``0/steps``
+    before the epoch's first step (``start``) and advanced after every step."""
+
+    def __init__(self, bar) -> None:
+        self.bar, self.tasks = bar, {}
+
+    def start(self, stage: str, epoch: int, steps: int) -> None:
+        if (stage, epoch) not in self.tasks:
+            self.tasks[stage, epoch] = self.bar.add_task(f"{stage} epoch {epoch}", total=steps, loss="")
+
+    def __call__(self, stage: str, epoch: int, step: int, total: int, value: float) -> None:
+        self.start(stage, epoch, total)
+        self.bar.update(self.tasks[stage, epoch], completed=step, total=total, loss=f"loss {value:.4f}")
 
 
 def register_methods() -> None:

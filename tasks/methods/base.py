@@ -156,6 +156,22 @@ class TrainOptions(BaseModel):
     def valid_device(cls, value: str) -> str:
         return check_device(value) or "cpu"
 
+    def check_paths(self) -> None:
+        """The input paths exist, checked before torch and the trainer are imported (seconds): DATA,
+        ``--val-data`` and an ``--init-from`` checkpoint folder (its card).
+
+        Raises:
+            UnknownLogFormatError: no such log; CheckpointError: no readable card.
+        """
+        from dsnet_core.io.formats import UnknownLogFormatError
+        from dsnet_core.model.card import card_json
+
+        for path in (self.data, self.val_data):
+            if path is not None and not Path(path).expanduser().exists():
+                raise UnknownLogFormatError(Path(path).expanduser(), "no such file or folder")
+        if self.init_from is not None and str(self.init_from) != "bundled":
+            card_json(self.init_from)
+
     def epoch_counts(
         self, stages: tuple[str, ...], default_all: tuple[str, ...] | None = None
     ) -> dict[str, int]:

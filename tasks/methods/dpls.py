@@ -122,6 +122,9 @@ class Dpls(Method):
         return None if path is None else grid_of(self.checkpoints.read_card(path).config.grid)
 
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
+        assert isinstance(options, DplsTrainOptions)
+        epochs = options.epoch_counts(("dpls",))["dpls"]  # before torch and the trainer are imported
+
         import torch
 
         from dsnet_core.train import distributed
@@ -129,8 +132,6 @@ class Dpls(Method):
         from dsnet_core.train.skeleton import config_from
         from tasks.methods.training import open_training_data
 
-        assert isinstance(options, DplsTrainOptions)
-        epochs = options.epoch_counts(("dpls",))["dpls"]
         torch.set_num_threads(options.threads)
         data = open_training_data(options)
         cfg = config_from(DplsTrainConfig, options.model_dump(), epochs=epochs)

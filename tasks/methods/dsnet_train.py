@@ -203,13 +203,9 @@ def train_dsnet(method: Method, options: DsnetTrainOptions, on_step: StepCallbac
     Raises:
         ConfigError: bad data or settings (e.g. neither or both of DATA and ``--stream``).
     """
-    import torch
-
     from dsnet_core.errors import ConfigError
-    from dsnet_core.train import distributed
-    from dsnet_core.train.loop import TrainConfig, Trainer
-    from dsnet_core.train.skeleton import config_from
 
+    # the options first, before torch and the trainer are imported (seconds on a loaded machine)
     if (options.data is None) == (options.stream == 0):
         raise ConfigError("give a training log (DATA) or --stream N, not both or neither")
     if options.stream and (options.val_data is None or options.holdout):
@@ -221,6 +217,13 @@ def train_dsnet(method: Method, options: DsnetTrainOptions, on_step: StepCallbac
             f"--epochs {options.stage}=2)"
         )
     config = model_config(options)
+
+    import torch
+
+    from dsnet_core.train import distributed
+    from dsnet_core.train.loop import TrainConfig, Trainer
+    from dsnet_core.train.skeleton import config_from
+
     torch.set_num_threads(options.threads)
     stream = stream_reader(options) if options.stream else None
     try:

@@ -130,17 +130,11 @@ class Most(Method):
     def train(self, options: TrainOptions, on_step: StepCallback | None = None) -> str:
         from dataclasses import replace
 
-        import torch
-
         from dsnet_core.model.presets import get_preset
-        from dsnet_core.most.config import MostConfig
-        from dsnet_core.train import distributed
-        from dsnet_core.train.most import MostTrainConfig, MostTrainer
-        from dsnet_core.train.skeleton import config_from
         from tasks.methods.dsnet_train import parse_grid
-        from tasks.methods.training import open_training_data
 
         assert isinstance(options, MostTrainOptions)
+        # the options first, before torch and the trainer are imported (seconds on a loaded machine)
         epochs = options.epoch_counts(TRAIN_STAGES)
         if options.stage != "all" and not epochs[options.stage]:
             raise ValueError(
@@ -150,6 +144,15 @@ class Most(Method):
         backbone = get_preset(options.preset)
         if options.grid:
             backbone = replace(backbone, grid=replace(backbone.grid, size=parse_grid(options.grid)))
+
+        import torch
+
+        from dsnet_core.most.config import MostConfig
+        from dsnet_core.train import distributed
+        from dsnet_core.train.most import MostTrainConfig, MostTrainer
+        from dsnet_core.train.skeleton import config_from
+        from tasks.methods.training import open_training_data
+
         torch.set_num_threads(options.threads)
         data = open_training_data(options)
         cfg = config_from(MostTrainConfig, options.model_dump(), epochs=epochs)

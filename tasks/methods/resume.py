@@ -48,7 +48,14 @@ def check_train_resume(options: Any, command: str = "dsnet train") -> None:
         return
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun the main process owns the folder
         commit.recover(out)  # the card of the last committed epoch
+    else:  # the other ranks read the card once rank 0 has finished a killed epoch's moves
+        import time
+
+        deadline = time.monotonic() + 60
+        while (out / commit.PENDING / commit.COMMIT).exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
     if not (out / CARD).is_file():
+        refuse_lost_card(out)
         return
     data = card_json(out).get("training_data") or {}
     if "adapt" in data:
@@ -113,3 +120,27 @@ def _flag(name: str, given: Any, annotation: Any) -> str:
     if annotation is bool and not given:
         return "--no-" + flag[2:]
     return flag
+
+
+SAVED_FILES = ("model.safetensors", "shift.safetensors", "student.safetensors", "train_state.json",
+               "train_state.safetensors")  # fmt: skip
+"""Files of a saved epoch (a card is moved into place first: none of them is there without it)."""
+
+
+def refuse_lost_card(out: Path) -> None:
+    """A ``--resume`` into a folder holding a saved epoch's files but no card: the card was lost
+    (deleted, or never restored from a copy); resuming would train afresh over them.
+
+    Raises:
+        CheckpointError: naming the card and the files found.
+    """
+    from dsnet_core.errors import CheckpointError
+    from dsnet_core.model.card import CARD
+
+    found = [name for name in SAVED_FILES if (Path(out) / name).is_file()]
+    if found:
+        raise CheckpointError(
+            Path(out) / CARD,
+            f"no model card beside {', '.join(found)}: the card is lost, so --resume cannot tell what was "
+            "trained; restore it from a copy, or train into another --out (or delete the folder)",
+        )

@@ -202,3 +202,49 @@ def kill_track_in_a_copy(store, pipeline_factory: str, root, frames: int = 6):
     done = copy.arrays("00", StageContract("track", "frame", (FRAME_LABEL,))).done().tolist()
     assert done == [True] * 3 + [False] * (frames - 3)
     return copy
+
+
+KILL_AT_REPLACE = """
+import os, signal, sys
+target, at, trace = os.path.abspath(sys.argv[1]), sys.argv[2], sys.argv[3]
+name, _, nth = at.rpartition(":") if ":" in at else ("", "", at)
+_replace, _count = os.replace, {}
+def replace(src, dst, *args, **kwargs):
+    dst_abs = os.path.abspath(os.fspath(dst))
+    if dst_abs.startswith(target + os.sep):
+        rel = os.path.relpath(dst_abs, target)
+        key = rel if name else ""
+        if not name or rel == name:
+            _count[key] = _count.get(key, 0) + 1
+            if _count[key] == int(nth):
+                os.kill(os.getpid(), signal.SIGKILL)
+        if trace:
+            with open(trace, "a") as f:
+                f.write(rel + "\\n")
+    return _replace(src, dst, *args, **kwargs)
+os.replace = replace
+sys.argv = ["dsnet", *sys.argv[4:]]
+from flows.cli import main
+main()
+"""
+"""A ``python -c`` script: ``dsnet ARGS…`` (``sys.argv[4:]``) that SIGKILLs itself just before a
+chosen file lands in folder ``sys.argv[1]`` (every file there is written to a temporary name and
+moved into place with ``os.replace``: each move is a commit point). ``sys.argv[2]`` is ``N`` (the
+N-th move into the folder; 0 never kills) or ``REL:N`` (the N-th move onto path ``REL``, relative
+to the folder); a non-empty ``sys.argv[3]`` is a file that records each landed path."""
+
+
+def dsnet_killed_at_replace(
+    folder, at: int | str, args: list, trace=None, timeout: float = 600
+) -> subprocess.CompletedProcess:
+    """Run ``dsnet ARGS…`` in a subprocess SIGKILLed before the ``at``-th file moved into ``folder``
+    (or the ``N``-th move onto ``REL`` for ``at="REL:N"``: :data:`KILL_AT_REPLACE`); ``trace`` (a
+    path) records the moves. Returns the finished process (return code ``-9`` when killed)."""
+    import os
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(repo), "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-c", KILL_AT_REPLACE, str(folder), str(at), str(trace or ""), *map(str, args)]
+    return subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=timeout)

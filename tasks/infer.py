@@ -49,7 +49,9 @@ class InferConfig(StageConfig):
         argmax: ``labelled`` (default): a point's class is the argmax over the classes without
             "unlabelled"; ``all``: over every class, the reference DS-Net's rule (reproducing its
             published numbers with an imported checkpoint; points may then be labelled 0).
-        match: ``none`` (default): the network reads the log's clouds as they are; ``ground``,
+        match: ``auto`` (default): ``ground`` for a checkpoint trained on a stream rendered like a
+            sensor (its card's stream has a sensor card), else ``none``; ``none``: the network
+            reads the log's clouds as they are; ``ground``,
             ``remission``, ``both``: each cloud moved toward the sensor the model was trained on
             (its card's sensor reference, :mod:`dsnet_core.model.sensor_match`) before the network
             reads it: the ground under the origin to the training sensor's height, the remission
@@ -64,7 +66,7 @@ class InferConfig(StageConfig):
     tta_flip: bool = False
     equivariant: int | None = Field(None, ge=1)
     argmax: Literal["labelled", "all"] = "labelled"
-    match: Literal["none", "ground", "remission", "both"] = "none"
+    match: Literal["auto", "none", "ground", "remission", "both"] = "auto"
 
     @model_serializer(mode="wrap")
     def _defaults_unrecorded(self, handler):
@@ -73,7 +75,7 @@ class InferConfig(StageConfig):
         data = handler(self)
         if data.get("argmax") == "labelled":
             data.pop("argmax")
-        if data.get("match") == "none":
+        if data.get("match") == "auto":
             data.pop("match")
         return data
 

@@ -62,16 +62,19 @@ class StoredResult:
 
 
 def sensor_match(path: str | Path, card: ModelCard, mode: str) -> SensorMatch | None:
-    """The ``match`` transform of checkpoint ``path`` (None for ``"none"``).
+    """The ``match`` transform of checkpoint ``path`` (None for ``"none"``, and for ``"auto"`` where
+    the card's :func:`~dsnet_core.model.sensor_match.auto_mode` says ``none``).
 
     Raises:
         ConfigError: an unknown mode, or a card without ``training_data.sensor_reference``.
     """
     from dsnet_core.errors import ConfigError
-    from dsnet_core.model.sensor_match import MATCH_MODES, SensorMatch, card_reference
+    from dsnet_core.model.sensor_match import MATCH_MODES, SensorMatch, auto_mode, card_reference
 
     if mode not in MATCH_MODES:
         raise ConfigError(f"--match {mode!r}: choose one of {', '.join(MATCH_MODES)}")
+    if mode == "auto":
+        mode = auto_mode(card.training_data or {})
     if mode == "none":
         return None
     ref = card_reference(card.training_data or {}, f"{path}/card.json")
@@ -137,7 +140,7 @@ class Predictor:
         expect_label_map: LabelMap | None = None,
         tta: TTAConfig | None = None,
         argmax: str = "labelled",
-        match: str = "none",
+        match: str = "auto",
     ) -> Predictor:
         """Load a checkpoint folder (verified, see :func:`load_checkpoint`); ``match`` (one of
         :data:`~dsnet_core.model.sensor_match.MATCH_MODES`) toward its card's sensor reference.

@@ -34,7 +34,7 @@ import numpy as np
 from dsnet_core.errors import ConfigError
 from dsnet_core.model.ground_height import CELL, HALF_EXTENT, ground_grid
 
-MATCH_MODES = ("none", "ground", "remission", "both")
+MATCH_MODES = ("auto", "none", "ground", "remission", "both")
 LEVELS = 101
 """Remission quantiles recorded (levels 0, 0.01, …, 1)."""
 RING = (5.0, 15.0)
@@ -156,7 +156,7 @@ class SensorMatch:
     mode: str
 
     def __post_init__(self) -> None:
-        if self.mode not in MATCH_MODES[1:]:
+        if self.mode not in MATCH_MODES[2:]:
             raise ConfigError(f"match must be one of {', '.join(MATCH_MODES)}, got {self.mode!r}")
 
     def __call__(self, cloud: np.ndarray) -> np.ndarray:
@@ -171,6 +171,14 @@ class SensorMatch:
         if self.mode in ("remission", "both"):
             out[:, 3] = np.interp(mid_rank(out[:, 3]), _QUANTILES, np.asarray(self.reference.remission))
         return out
+
+
+def auto_mode(training_data: dict) -> str:
+    """What ``auto`` means for a card: ``ground`` when it was trained (or fine-tuned) on a stream
+    rendered with a sensor card (``--stream-like``/``--sensor-card``: it learned that sensor's own
+    frame, which a log's origin need not be) and records its reference, else ``none``."""
+    stream = training_data.get("stream") or {}
+    return "ground" if stream.get("sensor_card") and training_data.get("sensor_reference") else "none"
 
 
 def card_reference(training_data: dict, where: str) -> SensorReference | None:

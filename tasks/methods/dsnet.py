@@ -42,10 +42,11 @@ class DsnetSettings(TemporalSettings):
     tta: int = option(1, "Average the semantics over N yaw rotations (1: off).", MODEL, ge=1, le=64)
     tta_flip: bool = option(False, "With --tta: their mirror images too.", MODEL)
     equivariant: int | None = option(None, "Require a C_n-equivariant checkpoint of this n.", MODEL, ge=1)
-    match: Literal["none", "ground", "remission", "both"] = option(
-        "none",
+    match: Literal["auto", "none", "ground", "remission", "both"] = option(
+        "auto",
         "Move each cloud toward the model's training sensor before the network reads it: ground "
-        "height under the origin, remission quantiles by rank, or both (docs/sensor_match.md).",
+        "height under the origin, remission quantiles by rank, or both; auto: ground for a model "
+        "trained on a stream rendered like a sensor (--stream-like), else none (docs/sensor_match.md).",
         MODEL,
     )
 
@@ -110,7 +111,7 @@ class Dsnet(Method):
             infer.update(tta=settings.tta, tta_flip=settings.tta_flip)
         if settings.equivariant is not None:
             infer["equivariant"] = settings.equivariant
-        if settings.match != "none":
+        if settings.match != "auto":
             infer["match"] = settings.match
         if infer:
             stages["infer"] = infer

@@ -97,7 +97,7 @@ def test_both_is_ground_then_remission_and_empty_clouds_pass():
     np.testing.assert_array_equal(both[:, :3], SensorMatch(ref, "ground")(cloud)[:, :3])
     np.testing.assert_array_equal(both[:, 3], SensorMatch(ref, "remission")(cloud)[:, 3])
     assert SensorMatch(ref, "both")(np.zeros((0, 4), np.float32)).shape == (0, 4)
-    with pytest.raises(ConfigError, match="match must be one of none, ground, remission, both"):
+    with pytest.raises(ConfigError, match="match must be one of auto, none, ground, remission, both"):
         SensorMatch(ref, "sideways")
 
 
@@ -151,7 +151,7 @@ def test_the_predictor_reads_the_matched_cloud_and_answers_per_given_point(tmp_p
     with pytest.raises(ConfigError, match="records no sensor reference") as err:
         Predictor.from_checkpoint(bare, match="ground")
     assert str(bare) in str(err.value) and "\n" not in str(err.value)
-    with pytest.raises(ConfigError, match="--match 'tilt': choose one of none, ground, remission, both"):
+    with pytest.raises(ConfigError, match="--match 'tilt': choose one of auto, none, ground"):
         Predictor.from_checkpoint(ck, match="tilt")
 
 
@@ -168,10 +168,24 @@ def test_the_bundled_models_record_their_training_sensor():
         assert 0.15 < ref.remission[50] < 0.3  # the stream's median remission
 
 
+def test_auto_is_ground_for_a_model_trained_like_a_sensor_and_none_otherwise(tmp_path):
+    ref = _reference(-2.1)
+    plain = _checkpoint(tmp_path / "plain", ref)  # a reference, but no sensor card: none
+    assert Predictor.from_checkpoint(plain).match is None
+    assert Predictor.from_checkpoint(_checkpoint(tmp_path / "bare", None)).match is None
+    data = {"sensor_reference": ref.to_dict(), "stream": {"sensor_card": {"name": "mine"}}}
+    card = ModelCard(architecture={}, class_map=class_map_of(LM), training_data=data, code_version="test")
+    like = save_checkpoint(tmp_path / "like", DSNet(TEST_CONFIG), card)
+    auto = Predictor.from_checkpoint(like).match
+    assert auto == SensorMatch(ref, "ground")
+    assert Predictor.from_checkpoint(like, match="none").match is None
+
+
 def test_infer_config_leaves_the_default_out_of_its_record():
     from tasks.infer import InferConfig
 
     assert "match" not in InferConfig().model_dump()
+    assert "match" in InferConfig(match="none").model_dump()
     assert InferConfig(match="both").model_dump()["match"] == "both"
     with pytest.raises(ValueError, match="match"):
         InferConfig(match="sideways")

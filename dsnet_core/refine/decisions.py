@@ -124,23 +124,28 @@ def _masked_argmax(votes: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def kept_classes(
-    track: np.ndarray, sighting: np.ndarray, winner: int, thing: np.ndarray, margin: float
-) -> int:
-    """The bit mask of the thing classes whose points in one sighting keep their class.
+    track: np.ndarray, sightings: np.ndarray, winner: int, thing: np.ndarray, margin: float
+) -> np.ndarray:
+    """``(R,) int64``: per sighting, the bit mask (bit ``c`` for train id ``c``) of the thing
+    classes whose points in it keep their class instead of the track's.
 
-    A class ``c`` (not the ``winner`` of the track's vote) is kept when both the track's vote does
-    not beat it clearly, ``track[winner] < margin * track[c]``, and the sighting itself prefers it
-    clearly, ``sighting[c] >= margin * sighting[winner]`` with ``sighting[c] > 0`` (one-hot votes of
-    hard labels: a sighting whose points are all ``c`` prefers it clearly). ``margin`` 0 keeps none.
+    A class ``c`` (not the ``winner`` of the track's vote) is kept in a sighting when both the
+    track's vote does not beat it clearly, ``track[winner] < margin * track[c]``, and the sighting
+    prefers it clearly, ``sighting[c] >= margin * sighting[winner]`` with ``sighting[c] > 0`` (with
+    the one-hot votes of hard labels a sighting whose points are all ``c`` prefers it clearly).
+    ``margin`` 0 keeps none.
 
     Args:
-        track: ``(C,)`` the (joined) track's votes. sighting: ``(C,)`` the sighting's votes.
+        track: ``(C,)`` the (joined) track's votes.
+        sightings: ``(R, C)`` its sightings' votes (each the sum over its points).
         winner: the track's class. thing: ``(C,) bool``. margin: ``class_margin``.
     """
-    t, v = np.asarray(track, np.float64), np.asarray(sighting, np.float64)
-    held = thing & (v > 0) & (t[winner] < margin * t) & (v >= margin * v[winner])
-    held[winner] = False
-    return int(sum(1 << int(c) for c in np.flatnonzero(held)))
+    t = np.asarray(track, np.float64)
+    v = np.asarray(sightings, np.float64).reshape(-1, t.size)
+    held = (thing & (t[winner] < margin * t))[None, :] & (v > 0) & (v >= margin * v[:, winner : winner + 1])
+    held[:, winner] = False
+    bits = np.int64(1) << np.arange(t.size, dtype=np.int64)
+    return (held * bits[None, :]).sum(axis=1, dtype=np.int64)
 
 
 def decide_tracks(
@@ -198,11 +203,13 @@ def decide_tracks(
         if merged[sets.thing].sum() > 0:
             winner = int(_masked_argmax(merged[None, :], sets.thing)[0])
             class_id[members] = winner
-            for m in members:
-                for r in range(int(s.start[m]), int(s.start[m + 1])):
-                    mask = kept_classes(merged, s.sighting_votes[r], winner, sets.thing, params.class_margin)
-                    if mask:
-                        kept.append((int(s.frame[r]), int(s.ids[m]), mask))
+            rows = np.concatenate([np.arange(s.start[m], s.start[m + 1]) for m in members])
+            masks = kept_classes(merged, s.sighting_votes[rows], winner, sets.thing, params.class_margin)
+            key = np.repeat(s.ids[members], np.diff(s.start)[members])
+            kept.extend(
+                (int(s.frame[r]), int(k), int(x))
+                for r, k, x in zip(rows[masks > 0], key[masks > 0], masks[masks > 0], strict=True)
+            )
         if world:
             rows = np.concatenate([np.arange(s.start[m], s.start[m + 1]) for m in members])
             rows = rows[np.argsort(s.frame[rows], kind="stable")]

@@ -47,7 +47,7 @@ class RefineConfig(StageConfig):
         static_vote, voxel, window, min_frames, min_share, min_votes, range_ref, top_k: the static
             vote (voxel metres, window ±W frames, range_ref metres or None).
         dissolve_frames, dissolve_confidence, moving_distance, moving_extent, min_static_frames,
-            join_gap, join_distance, velocity_frames: the track decisions.
+            join_gap, join_distance, velocity_frames, class_margin: the track decisions.
         ground_prior, ground_max_confidence, sensor_height: the optional Patchwork++ ground prior
             (``pip install 'dsnet-pipeline[ground]'``).
     """
@@ -68,6 +68,7 @@ class RefineConfig(StageConfig):
     join_gap: int = Field(5, ge=0)
     join_distance: float = Field(1.0, ge=0)
     velocity_frames: int = Field(5, ge=1)
+    class_margin: float = Field(2.0, ge=0)
     ground_prior: bool = False
     ground_max_confidence: float = Field(0.6, ge=0, le=1)
     sensor_height: float = Field(1.73, gt=0)
@@ -82,7 +83,8 @@ def refine_params(config: RefineConfig):
         vote=VoteParams(c.static_vote, c.voxel, c.window, c.min_frames, c.min_share, c.min_votes, c.range_ref,
                         c.top_k),
         track=TrackParams(c.dissolve_frames, c.dissolve_confidence, c.moving_distance, c.moving_extent,
-                          c.min_static_frames, c.join_gap, c.join_distance, c.velocity_frames),
+                          c.min_static_frames, c.join_gap, c.join_distance, c.velocity_frames,
+                          c.class_margin),
         ground=GroundParams(c.ground_prior, c.ground_max_confidence, c.sensor_height),
     )  # fmt: skip
 
@@ -115,7 +117,8 @@ TRACKS = TableSpec(
         [
             ("id", pa.int32()),  # sequence-wide id after joins (the earliest id of a chain)
             ("generation", pa.int32()),  # which hand-out of the id (the temporal stage's; 0 unless reused)
-            ("class_id", pa.int32()),  # train id of all its points (-1: they keep their own)
+            ("class_id", pa.int32()),  # train id its points take (-1: they keep their own) ...
+            ("kept_classes", pa.list_(pa.int32())),  # ... but points of these keep theirs in some frames
             ("first_frame", pa.int32()),
             ("last_frame", pa.int32()),
             ("n_frames", pa.int32()),
@@ -208,7 +211,7 @@ class RefineStage(Stage):
     """Refines the final labels of the temporal stage named ``labels``."""
 
     name = "refine"
-    version = "2"  # 2: track keys of reused ids, refine_tracks' generation
+    version = "3"  # 2: track keys of reused ids, refine_tracks' generation; 3: class_margin, kept_classes
     Config = RefineConfig
     item = "frame"
     arrays = (FRAME_LABEL,)

@@ -22,6 +22,9 @@ from dsnet_core.temporal.ids import key_generation, key_id
 
 _COLUMNS = ("ids", "final_id", "class_id", "static", "dissolved", "confidence", "first", "last", "n_frames",
             "n_points")  # fmt: skip
+_KEPT = ("kept_key", "kept_frame", "kept_mask")
+MAX_CLASSES = 63
+"""The most train ids a label map may have here (kept classes are bit masks in an int64)."""
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,9 @@ class TrackDecisions:
         dissolved: it dissolved into the static vote.
         confidence: its confidence in [0, 1] (the temporal stage's, else its vote's thing share).
         first, last, n_frames, n_points: its sightings before the joins.
+        kept_key, kept_frame, kept_mask: ``(K,) int64``, sorted by (frame, key): the sightings
+            (track key, frame) whose points of the thing classes in ``kept_mask`` (bit ``c`` for
+            train id ``c``) keep their own class instead of ``class_id`` (:func:`kept_classes`).
         joins: the joins made.
         refused: joins refused because they would have stretched a reused id over another track.
     """
@@ -54,6 +60,9 @@ class TrackDecisions:
     last: np.ndarray
     n_frames: np.ndarray
     n_points: np.ndarray
+    kept_key: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    kept_frame: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    kept_mask: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     joins: tuple[Join, ...] = field(default_factory=tuple)
     refused: int = 0
 
@@ -72,9 +81,20 @@ class TrackDecisions:
             return np.full(row.shape, fill, dtype=values.dtype)
         return np.where(row >= 0, values[np.maximum(row, 0)], fill)
 
+    def kept_in(self, frame: int, inst: np.ndarray) -> np.ndarray:
+        """``(N,) int64``: the kept-class mask of each point's sighting in ``frame`` (0: none)."""
+        lo, hi = np.searchsorted(self.kept_frame, [frame, frame + 1])
+        out = np.zeros(np.shape(inst), np.int64)
+        if hi > lo:
+            keys, masks = self.kept_key[lo:hi], self.kept_mask[lo:hi]
+            pos = np.clip(np.searchsorted(keys, inst), 0, keys.size - 1)
+            hit = keys[pos] == inst
+            out[hit] = masks[pos[hit]]
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able form (lists of numbers)."""
-        out: dict[str, Any] = {k: getattr(self, k).tolist() for k in _COLUMNS}
+        out: dict[str, Any] = {k: getattr(self, k).tolist() for k in _COLUMNS + _KEPT}
         out["joins"] = [[j.earlier, j.later, j.gap, round(j.distance, 6)] for j in self.joins]
         out["refused"] = self.refused
         return out
@@ -82,7 +102,7 @@ class TrackDecisions:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrackDecisions:
         kinds = {"static": bool, "dissolved": bool, "confidence": np.float64}
-        cols = {k: np.asarray(d[k], kinds.get(k, np.int64)) for k in _COLUMNS}
+        cols = {k: np.asarray(d[k], kinds.get(k, np.int64)) for k in _COLUMNS + _KEPT}
         joins = tuple(Join(int(a), int(b), int(g), float(x)) for a, b, g, x in d.get("joins", []))
         return cls(**cols, joins=joins, refused=int(d.get("refused", 0)))
 
@@ -103,6 +123,31 @@ def _masked_argmax(votes: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.argmax(v, axis=1).astype(np.int64) if votes.size else np.zeros(votes.shape[0], np.int64)
 
 
+def kept_classes(
+    track: np.ndarray, sightings: np.ndarray, winner: int, thing: np.ndarray, margin: float
+) -> np.ndarray:
+    """``(R,) int64``: per sighting, the bit mask (bit ``c`` for train id ``c``) of the thing
+    classes whose points in it keep their class instead of the track's.
+
+    A class ``c`` (not the ``winner`` of the track's vote) is kept in a sighting when both the
+    track's vote does not beat it clearly, ``track[winner] < margin * track[c]``, and the sighting
+    prefers it clearly, ``sighting[c] >= margin * sighting[winner]`` with ``sighting[c] > 0`` (with
+    the one-hot votes of hard labels a sighting whose points are all ``c`` prefers it clearly).
+    ``margin`` 0 keeps none.
+
+    Args:
+        track: ``(C,)`` the (joined) track's votes.
+        sightings: ``(R, C)`` its sightings' votes (each the sum over its points).
+        winner: the track's class. thing: ``(C,) bool``. margin: ``class_margin``.
+    """
+    t = np.asarray(track, np.float64)
+    v = np.asarray(sightings, np.float64).reshape(-1, t.size)
+    held = (thing & (t[winner] < margin * t))[None, :] & (v > 0) & (v >= margin * v[:, winner : winner + 1])
+    held[:, winner] = False
+    bits = np.int64(1) << np.arange(t.size, dtype=np.int64)
+    return (held * bits[None, :]).sum(axis=1, dtype=np.int64)
+
+
 def decide_tracks(
     s: TrackSummary,
     sets: ClassSets,
@@ -118,7 +163,14 @@ def decide_tracks(
         params: the track settings.
         confidence: ``{track key: confidence}`` from the temporal stage, where it has one.
         world: poses are known; without them tracks are neither joined nor judged static.
+
+    Raises:
+        ValueError: the label map has more than :data:`MAX_CLASSES` train ids.
     """
+    if sets.num_classes > MAX_CLASSES:
+        raise ValueError(
+            f"refinement handles at most {MAX_CLASSES} classes, the label map has {sets.num_classes}"
+        )
     votes = np.where(sets.ignore[None, :], 0, s.votes)
     thing_mass = votes[:, sets.thing].sum(axis=1)
     stuff_mass = votes[:, sets.stuff].sum(axis=1)
@@ -145,10 +197,19 @@ def decide_tracks(
     final_id = np.where(dissolved, 0, heads)
     class_id = np.where(dissolved, stuff_class, -1)
     static = dissolved.copy()
+    kept: list[tuple[int, int, int]] = []  # (frame, key, mask)
     for _, members in _groups(heads, ~dissolved):
         merged = votes[members].sum(axis=0)
         if merged[sets.thing].sum() > 0:
-            class_id[members] = int(_masked_argmax(merged[None, :], sets.thing)[0])
+            winner = int(_masked_argmax(merged[None, :], sets.thing)[0])
+            class_id[members] = winner
+            rows = np.concatenate([np.arange(s.start[m], s.start[m + 1]) for m in members])
+            masks = kept_classes(merged, s.sighting_votes[rows], winner, sets.thing, params.class_margin)
+            key = np.repeat(s.ids[members], np.diff(s.start)[members])
+            kept.extend(
+                (int(s.frame[r]), int(k), int(x))
+                for r, k, x in zip(rows[masks > 0], key[masks > 0], masks[masks > 0], strict=True)
+            )
         if world:
             rows = np.concatenate([np.arange(s.start[m], s.start[m + 1]) for m in members])
             rows = rows[np.argsort(s.frame[rows], kind="stable")]
@@ -167,6 +228,9 @@ def decide_tracks(
         last=s.last.astype(np.int64),
         n_frames=n_frames.astype(np.int64),
         n_points=s.n_points.astype(np.int64),
+        kept_key=np.asarray([k for _, k, _ in sorted(kept)], np.int64),
+        kept_frame=np.asarray([f for f, _, _ in sorted(kept)], np.int64),
+        kept_mask=np.asarray([m for _, _, m in sorted(kept)], np.int64),
         joins=tuple(joins),
         refused=refused,
     )
@@ -174,10 +238,14 @@ def decide_tracks(
 
 def track_rows(d: TrackDecisions) -> list[dict[str, Any]]:
     """One row per track after refinement (joined tracks as one; dissolved tracks omitted), sorted
-    by (id, generation): id and generation (its earliest track's), class_id (-1: mixed), first/last
-    frame, n_frames, n_points, moving, joined and joined_generation (its original tracks),
-    confidence (point-weighted mean)."""
+    by (id, generation): id and generation (its earliest track's), class_id (-1: mixed),
+    kept_classes (the thing classes whose points keep theirs in some sighting), first/last frame,
+    n_frames, n_points, moving, joined and joined_generation (its original tracks), confidence
+    (point-weighted mean)."""
     rows = []
+    kept_by_key: dict[int, int] = {}
+    for k, mask in zip(d.kept_key.tolist(), d.kept_mask.tolist(), strict=True):
+        kept_by_key[k] = kept_by_key.get(k, 0) | mask
     groups = dict(_groups(d.final_id, d.final_id > 0))
     for head in sorted(groups, key=lambda k: (key_id(k), k)):
         m = groups[head]
@@ -187,6 +255,7 @@ def track_rows(d: TrackDecisions) -> list[dict[str, Any]]:
                 "id": int(key_id(head)),
                 "generation": int(key_generation(head)),
                 "class_id": int(d.class_id[m[0]]),
+                "kept_classes": _bits(_union(kept_by_key.get(int(k), 0) for k in d.ids[m])),
                 "first_frame": int(d.first[m].min()),
                 "last_frame": int(d.last[m].max()),
                 "n_frames": int(d.n_frames[m].sum()),
@@ -198,3 +267,15 @@ def track_rows(d: TrackDecisions) -> list[dict[str, Any]]:
             }
         )
     return rows
+
+
+def _union(masks) -> int:
+    out = 0
+    for m in masks:
+        out |= m
+    return out
+
+
+def _bits(mask: int) -> list[int]:
+    """The train ids set in ``mask``, ascending."""
+    return [c for c in range(MAX_CLASSES) if mask >> c & 1]

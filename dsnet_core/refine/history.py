@@ -1,5 +1,5 @@
 """What refinement gathers about every track over the whole sequence (one pass, little memory):
-per sighting its centre and extent in the world frame, and per track its summed class votes.
+per sighting its centre, extent and class votes, and per track its summed class votes.
 
 :func:`frame_tracks` reduces one frame; :class:`TrackHistory` collects frames in any order and
 :meth:`TrackHistory.summary` returns the sequence's :class:`TrackSummary`.
@@ -70,6 +70,7 @@ class TrackSummary:
         n_points: ``(T,) int64``.
         start: ``(T + 1,) int64`` offsets of each track's sightings in the row arrays.
         frame, time, centre, extent, points: per sighting (rows sorted by id, then frame).
+        sighting_votes: ``(R, C) int64`` per sighting, the summed votes of its points.
     """
 
     ids: np.ndarray
@@ -81,6 +82,7 @@ class TrackSummary:
     centre: np.ndarray
     extent: np.ndarray
     points: np.ndarray
+    sighting_votes: np.ndarray
 
     def rows(self, t: int) -> slice:
         """The sightings of track number ``t`` (an index into ``ids``)."""
@@ -104,12 +106,20 @@ class TrackHistory:
 
     def __init__(self, n_classes: int) -> None:
         self.n_classes = n_classes
-        self._rows: list[tuple[int, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._rows: list[tuple[int, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self._votes: dict[int, np.ndarray] = {}
 
     def add(self, tracks: FrameTracks) -> None:
         self._rows.append(
-            (tracks.frame, tracks.time, tracks.ids, tracks.n_points, tracks.centre, tracks.extent)
+            (
+                tracks.frame,
+                tracks.time,
+                tracks.ids,
+                tracks.n_points,
+                tracks.centre,
+                tracks.extent,
+                tracks.votes,
+            )
         )
         for i, v in zip(tracks.ids.tolist(), tracks.votes, strict=True):
             self._votes[i] = self._votes[i] + v if i in self._votes else v.copy()
@@ -117,22 +127,23 @@ class TrackHistory:
     def summary(self) -> TrackSummary:
         rows = self._rows
         if not rows or not sum(r[2].size for r in rows):
-            z = np.zeros(0, np.int64)
-            return TrackSummary(z, np.zeros((0, self.n_classes), np.int64), z, np.zeros(1, np.int64), z,
-                                np.zeros(0), np.zeros((0, 3)), np.zeros(0), z)  # fmt: skip
+            z, zc = np.zeros(0, np.int64), np.zeros((0, self.n_classes), np.int64)
+            return TrackSummary(z, zc, z, np.zeros(1, np.int64), z, np.zeros(0), np.zeros((0, 3)),
+                                np.zeros(0), z, zc.copy())  # fmt: skip
         ids = np.concatenate([r[2] for r in rows])
         frame = np.concatenate([np.full(r[2].size, r[0], np.int64) for r in rows])
         time = np.concatenate([np.full(r[2].size, r[1], np.float64) for r in rows])
         points = np.concatenate([r[3] for r in rows])
         centre = np.concatenate([r[4] for r in rows])
         extent = np.concatenate([r[5] for r in rows])
+        sighting = np.concatenate([r[6] for r in rows]).astype(np.int64, copy=False)
         order = np.lexsort((frame, ids))
-        ids, frame, time, centre, extent, points = (
-            a[order] for a in (ids, frame, time, centre, extent, points)
+        ids, frame, time, centre, extent, points, sighting = (
+            a[order] for a in (ids, frame, time, centre, extent, points, sighting)
         )
         uniq, first = np.unique(ids, return_index=True)
         start = np.append(first, ids.size).astype(np.int64)
         votes = np.stack([self._votes[int(i)] for i in uniq])
         return TrackSummary(
-            uniq, votes, np.add.reduceat(points, first), start, frame, time, centre, extent, points
+            uniq, votes, np.add.reduceat(points, first), start, frame, time, centre, extent, points, sighting
         )

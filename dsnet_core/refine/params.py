@@ -62,6 +62,11 @@ class TrackParams:
         join_distance: the largest mean distance (metres) between each track's position
             extrapolated over the gap and the other's observed centre.
         velocity_frames: sightings a track's end (start) velocity is fitted to.
+        class_margin: a point of a thing class ``c`` keeps ``c`` instead of taking its track's
+            class ``w`` (the winner of the track's vote) when the track's vote does not beat ``c``
+            by this factor and the point's sighting (its instance in its frame) prefers ``c`` over
+            ``w`` by it: a confident instance is re-labelled only by a clear track vote, an unsure
+            one takes its track's class. 0: every point takes ``w`` (the bare plurality).
     """
 
     dissolve_frames: int = 3
@@ -72,10 +77,13 @@ class TrackParams:
     join_gap: int = 5
     join_distance: float = 1.0
     velocity_frames: int = 5
+    class_margin: float = 2.0
 
     def __post_init__(self) -> None:
         if min(self.dissolve_frames, self.join_gap, self.min_static_frames) < 0 or self.velocity_frames < 1:
             raise ValueError(f"invalid track settings {self}")
+        if not self.class_margin >= 0.0:
+            raise ValueError(f"class_margin must be at least 0, got {self.class_margin}")
         if self.moving_distance < 0 or self.moving_extent < 0 or self.join_distance < 0:
             raise ValueError(f"invalid track settings {self}")
 

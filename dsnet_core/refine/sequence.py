@@ -149,7 +149,9 @@ def _apply(frame: FrameInput, d: TrackDecisions) -> _Tracked:
     sem, inst = frame.sem.copy(), frame.inst.copy()
     inst[points] = d.final_id[rows]
     cls = d.class_id[rows]
-    sem[points[cls >= 0]] = cls[cls >= 0]
+    kept = d.kept_in(frame.index, frame.inst[points])
+    take = (cls >= 0) & (((kept >> frame.sem[points]) & 1) == 0)  # a kept class keeps its points
+    sem[points[take]] = cls[take]
     static = np.zeros(inst.shape, bool)
     static[points] = d.static[rows]
     changed = (sem != frame.sem) | (key_id(inst) != key_id(frame.inst))

@@ -45,17 +45,88 @@ def test_a_track_flipped_on_30_percent_of_its_frames_gets_one_class(street, soft
     for f in street:
         sem = f.sem.copy()
         if f.index in flipped:
-            sem[f.inst == 2] = scenes.TRUCK  # the overtaking car
-            sem[f.inst == 1] = scenes.PERSON  # the parked car: another group altogether
+            sem[f.inst == 2] = scenes.TRUCK  # the overtaking car: 9 of its 30 frames
+            sem[f.inst == 1] = scenes.PERSON  # the parked car (another group): 6 of its 17 frames
         g = replace(f, sem=sem)
         frames.append(scenes.soft_probs(g) if soft else g)
+    # the overtaking car's vote beats truck 2.2 (2.3 one-hot) to 1: every point takes car. The
+    # parked car's beats person 2.07 to 1 one-hot, 1.9999 to 1 soft: below the default
+    # class_margin of 2, its confidently-person frames (0.7 to 0.02) keep person there
+    plurality = RefineParams(track=TrackParams(class_margin=0.0))
+    for params, parked in ((RefineParams(), {scenes.CAR} if not soft else {scenes.CAR, scenes.PERSON}),
+                           (plurality, {scenes.CAR})):  # fmt: skip
+        out = refine_sequence(frames, scenes.SETS, params)
+        for o, f in zip(out, street, strict=True):
+            assert set(o.sem[o.inst == 2].tolist()) <= {scenes.CAR}
+            assert set(o.sem[o.inst == 1].tolist()) <= parked
+            if parked == {scenes.CAR, scenes.PERSON} and f.index in flipped and (f.inst == 1).any():
+                assert (o.sem[o.inst == 1] == scenes.PERSON).all()
+            np.testing.assert_array_equal(o.inst, f.inst)
+        changed = {o.index for o in out if o.change.by_track}
+        assert changed == {f for f in flipped if (street[f].inst > 0).any()}
+
+
+def _two_class_track(sightings, a: int, b: int, n_classes: int = 20) -> list[FrameInput]:
+    """One track (id 5) seen once per frame: ``sightings`` is a list of ``(points, p_a, p_b,
+    own)``: that many points with probability ``p_a`` of class ``a`` and ``p_b`` of ``b`` (the rest
+    on road), labelled ``own``. The points sit still 10 m ahead (range weight 1)."""
+    frames = []
+    for t, (n, pa, pb, own) in enumerate(sightings):
+        probs = np.zeros((n, n_classes))
+        probs[:, a], probs[:, b], probs[:, scenes.ROAD] = pa, pb, 1 - pa - pb
+        xyz = np.tile(np.array([[10.0, 0.0, 0.5]], np.float32), (n, 1)) + np.arange(n)[:, None] * 1e-3
+        sem, inst = np.full(n, own, np.int64), np.full(n, 5, np.int64)
+        frames.append(
+            FrameInput(t, 0.1 * t, np.eye(4), xyz, sem, inst, np.rint(probs * 255).astype(np.uint8))
+        )
+    return frames
+
+
+def test_a_confident_motorcycle_is_not_voted_into_a_motorcyclist_by_a_close_vote():
+    moto, rider = 3, 8  # one association group: the tracker may mix them in one track
+    # six far frames of a clear motorcycle (0.6 vs 0.3) and two near frames with many points
+    # that lean motorcyclist (0.55 vs 0.35): the points' summed vote says motorcyclist, 292 to 284
+    frames = _two_class_track([(40, 0.6, 0.3, moto)] * 6 + [(200, 0.35, 0.55, rider)] * 2, moto, rider)
+    d = plan_refinement(frames, scenes.SETS, RefineParams()).decisions
+    assert d.class_id.tolist() == [rider]
     out = refine_sequence(frames, scenes.SETS, RefineParams())
-    for o, f in zip(out, street, strict=True):
-        assert set(o.sem[o.inst == 2].tolist()) <= {scenes.CAR}
-        assert set(o.sem[o.inst == 1].tolist()) <= {scenes.CAR}
-        np.testing.assert_array_equal(o.inst, f.inst)
-    changed = {o.index for o in out if o.change.by_track}
-    assert changed == {f for f in flipped if (street[f].inst > 0).any()}
+    assert [set(o.sem.tolist()) for o in out] == [{moto}] * 6 + [{rider}] * 2  # each keeps its own
+    assert all(o.change.by_track == 0 for o in out)
+    rows = track_rows(d)
+    assert rows[0]["class_id"] == rider and rows[0]["kept_classes"] == [moto]
+    # the bare plurality (class_margin 0, refine before version 3) made all of it motorcyclist
+    plurality = refine_sequence(frames, scenes.SETS, RefineParams(track=TrackParams(class_margin=0.0)))
+    assert all(set(o.sem.tolist()) == {rider} for o in plurality)
+
+
+def test_an_unsure_instance_takes_its_tracks_class_and_a_clear_vote_overrules_a_sure_one():
+    car, truck = scenes.CAR, scenes.TRUCK
+    # a close vote (car 200 to truck 160): the two unsure truck frames (0.5 vs 0.4) take car
+    frames = _two_class_track([(40, 0.6, 0.3, car)] * 5 + [(100, 0.4, 0.5, truck)] * 2, car, truck)
+    out = refine_sequence(frames, scenes.SETS, RefineParams())
+    assert all(set(o.sem.tolist()) == {car} for o in out)
+    assert [o.change.by_track for o in out] == [0] * 5 + [100, 100]
+    # a clear vote (9 frames of car 0.7 against one sure truck frame 0.7 vs 0.2) overrules it
+    frames = _two_class_track([(40, 0.7, 0.2, car)] * 9 + [(40, 0.2, 0.7, truck)], car, truck)
+    out = refine_sequence(frames, scenes.SETS, RefineParams())
+    assert all(set(o.sem.tolist()) == {car} for o in out) and out[-1].change.by_track == 40
+    assert plan_refinement(frames, scenes.SETS, RefineParams()).decisions.kept_key.size == 0
+
+
+def test_class_margin_default_and_refusal():
+    from pydantic import ValidationError
+
+    from tasks.methods import stage_config_line
+    from tasks.refine import RefineConfig, refine_params
+
+    assert RefineConfig().class_margin == 2.0 == TrackParams().class_margin
+    assert refine_params(RefineConfig(class_margin=3.5)).track.class_margin == 3.5
+    with pytest.raises(ValidationError) as exc:
+        RefineConfig(class_margin=-1)
+    line = stage_config_line("refine", exc.value)
+    assert "\n" not in line and "class_margin" in line
+    with pytest.raises(ValueError, match="class_margin must be at least 0, got -1"):
+        TrackParams(class_margin=-1)
 
 
 def test_a_track_cut_by_a_three_frame_gap_is_joined_with_its_earliest_id(street):

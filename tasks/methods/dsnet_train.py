@@ -39,6 +39,9 @@ class DsnetTrainOptions(StepOptions):
     )
     scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume (1 = single scans).")
     preset: str = Field("tiny", description="Model preset: tiny | small | paper | reference | cylinder3d.")
+    width: int | None = Field(
+        None, ge=1, description="U-Net base width (default: the preset's: tiny 4, small 8, paper 32)."
+    )
     grid: str | None = Field(None, description="Cylinder cells 'ρ,φ,z' (default: the preset's).")
     freeze_backbone: bool = Field(False, description="The semantic stage trains only the semantic head.")
     holdout: float = Field(0.0, ge=0.0, lt=1.0, description="Fraction of frames held back to validate.")
@@ -80,8 +83,8 @@ class DsnetTrainOptions(StepOptions):
 
 
 def model_config(options: DsnetTrainOptions):
-    """The architecture of a new checkpoint: the preset, ``--grid`` cells, equivariance, the input
-    channels and remission dropout (:mod:`dsnet_core.model.inputs`).
+    """The architecture of a new checkpoint: the preset, its ``--width``, ``--grid`` cells,
+    equivariance, the input channels and remission dropout (:mod:`dsnet_core.model.inputs`).
 
     Raises:
         ValueError: an unknown preset, or a grid that is not three cell counts ≥ 1.
@@ -90,6 +93,8 @@ def model_config(options: DsnetTrainOptions):
     from dsnet_core.model.presets import get_preset
 
     config = get_preset(options.preset)
+    if options.width is not None and options.width != config.width:
+        config = replace(config, width=options.width)
     if options.grid:
         config = replace(config, grid=replace(config.grid, size=parse_grid(options.grid)))
     if options.equivariant != 1 or options.pooling != "mean":

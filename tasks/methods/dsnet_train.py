@@ -105,8 +105,8 @@ def model_config(options: DsnetTrainOptions):
 
 
 def _check_inherited_inputs(options: DsnetTrainOptions, init_from) -> None:
-    """A fine-tune keeps its parent's inputs: refuse ``--inputs``/``--remission-dropout`` given
-    explicitly with other values than the ``--init-from`` model's card.
+    """A fine-tune keeps its parent's inputs and width: refuse ``--inputs``/``--remission-dropout``/
+    ``--width`` given explicitly with other values than the ``--init-from`` model's card.
 
     Raises:
         ConfigError: naming both.
@@ -115,10 +115,15 @@ def _check_inherited_inputs(options: DsnetTrainOptions, init_from) -> None:
     from dsnet_core.model.checkpoint import read_card
     from dsnet_core.model.inputs import InputSpec
 
-    given = options.model_fields_set & {"inputs", "remission_dropout"}
+    given = options.model_fields_set & {"inputs", "remission_dropout", "width"}
     if not given:
         return
     parent = read_card(init_from).config
+    if "width" in given and options.width != parent.width:
+        raise ConfigError(
+            f"--width {options.width}: the --init-from model {init_from} has width {parent.width}; "
+            "a fine-tune keeps its parent's architecture"
+        )
     if "inputs" in given and str(InputSpec.parse(options.inputs)) != parent.inputs:
         raise ConfigError(
             f"--inputs {options.inputs}: the --init-from model {init_from} was trained with inputs "

@@ -70,3 +70,13 @@ def test_width_overrides_only_the_presets_base_width():
     assert model_config(DsnetTrainOptions(out="x", width=4)) == tiny
     with pytest.raises(ValidationError, match="width"):
         DsnetTrainOptions(out="x", width=0)
+
+
+def test_a_fine_tune_refuses_another_width_than_its_parents():
+    from dsnet_core.errors import ConfigError
+    from tasks.methods.dsnet_train import _check_inherited_inputs
+
+    parent = get_method().bundled_checkpoint(1)
+    _check_inherited_inputs(DsnetTrainOptions(out="x", width=4), parent)  # the same width: fine
+    with pytest.raises(ConfigError, match=r"--width 6: the --init-from model .* has width 4; a fine-tune"):
+        _check_inherited_inputs(DsnetTrainOptions(out="x", width=6), parent)

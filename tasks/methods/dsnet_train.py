@@ -39,6 +39,9 @@ class DsnetTrainOptions(StepOptions):
     )
     scans: int = Field(1, ge=1, le=16, description="Scans per 4D volume (1 = single scans).")
     preset: str = Field("tiny", description="Model preset: tiny | small | paper | reference | cylinder3d.")
+    width: int | None = Field(
+        None, ge=1, description="U-Net base width (default: the preset's: tiny 4, small 8, paper 32)."
+    )
     grid: str | None = Field(None, description="Cylinder cells 'ρ,φ,z' (default: the preset's).")
     freeze_backbone: bool = Field(False, description="The semantic stage trains only the semantic head.")
     holdout: float = Field(0.0, ge=0.0, lt=1.0, description="Fraction of frames held back to validate.")
@@ -80,8 +83,8 @@ class DsnetTrainOptions(StepOptions):
 
 
 def model_config(options: DsnetTrainOptions):
-    """The architecture of a new checkpoint: the preset, ``--grid`` cells, equivariance, the input
-    channels and remission dropout (:mod:`dsnet_core.model.inputs`).
+    """The architecture of a new checkpoint: the preset, its ``--width``, ``--grid`` cells,
+    equivariance, the input channels and remission dropout (:mod:`dsnet_core.model.inputs`).
 
     Raises:
         ValueError: an unknown preset, or a grid that is not three cell counts ≥ 1.
@@ -90,6 +93,8 @@ def model_config(options: DsnetTrainOptions):
     from dsnet_core.model.presets import get_preset
 
     config = get_preset(options.preset)
+    if options.width is not None and options.width != config.width:
+        config = replace(config, width=options.width)
     if options.grid:
         config = replace(config, grid=replace(config.grid, size=parse_grid(options.grid)))
     if options.equivariant != 1 or options.pooling != "mean":
@@ -100,8 +105,8 @@ def model_config(options: DsnetTrainOptions):
 
 
 def _check_inherited_inputs(options: DsnetTrainOptions, init_from) -> None:
-    """A fine-tune keeps its parent's inputs: refuse ``--inputs``/``--remission-dropout`` given
-    explicitly with other values than the ``--init-from`` model's card.
+    """A fine-tune keeps its parent's inputs and width: refuse ``--inputs``/``--remission-dropout``/
+    ``--width`` given explicitly with other values than the ``--init-from`` model's card.
 
     Raises:
         ConfigError: naming both.
@@ -110,10 +115,15 @@ def _check_inherited_inputs(options: DsnetTrainOptions, init_from) -> None:
     from dsnet_core.model.checkpoint import read_card
     from dsnet_core.model.inputs import InputSpec
 
-    given = options.model_fields_set & {"inputs", "remission_dropout"}
+    given = options.model_fields_set & {"inputs", "remission_dropout", "width"}
     if not given:
         return
     parent = read_card(init_from).config
+    if "width" in given and options.width != parent.width:
+        raise ConfigError(
+            f"--width {options.width}: the --init-from model {init_from} has width {parent.width}; "
+            "a fine-tune keeps its parent's architecture"
+        )
     if "inputs" in given and str(InputSpec.parse(options.inputs)) != parent.inputs:
         raise ConfigError(
             f"--inputs {options.inputs}: the --init-from model {init_from} was trained with inputs "

@@ -57,3 +57,26 @@ def test_stream_variety_reaches_the_stream():
     assert base.options.config.variety == "base" and "variety" not in base.record()
     with pytest.raises(ValidationError, match="stream_variety"):
         DsnetTrainOptions(out="x", stream_variety="narrow")
+
+
+def test_width_overrides_only_the_presets_base_width():
+    from tasks.methods.dsnet_train import model_config
+
+    tiny = model_config(DsnetTrainOptions(out="x"))
+    six = model_config(DsnetTrainOptions(out="x", width=6))
+    assert (tiny.width, six.width) == (4, 6)
+    assert six.point_mlp == tiny.point_mlp and six.grid == tiny.grid
+    assert model_config(DsnetTrainOptions(out="x", preset="small")).width == 8
+    assert model_config(DsnetTrainOptions(out="x", width=4)) == tiny
+    with pytest.raises(ValidationError, match="width"):
+        DsnetTrainOptions(out="x", width=0)
+
+
+def test_a_fine_tune_refuses_another_width_than_its_parents():
+    from dsnet_core.errors import ConfigError
+    from tasks.methods.dsnet_train import _check_inherited_inputs
+
+    parent = get_method().bundled_checkpoint(1)
+    _check_inherited_inputs(DsnetTrainOptions(out="x", width=4), parent)  # the same width: fine
+    with pytest.raises(ConfigError, match=r"--width 6: the --init-from model .* has width 4; a fine-tune"):
+        _check_inherited_inputs(DsnetTrainOptions(out="x", width=6), parent)

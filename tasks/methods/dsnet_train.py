@@ -119,7 +119,7 @@ def _check_inherited_inputs(options: DsnetTrainOptions, init_from) -> None:
     if not given:
         return
     parent = read_card(init_from).config
-    if "width" in given and options.width != parent.width:
+    if options.width is not None and options.width != parent.width:  # None: the command line's default
         raise ConfigError(
             f"--width {options.width}: the --init-from model {init_from} has width {parent.width}; "
             "a fine-tune keeps its parent's architecture"

@@ -78,5 +78,7 @@ def test_a_fine_tune_refuses_another_width_than_its_parents():
 
     parent = get_method().bundled_checkpoint(1)
     _check_inherited_inputs(DsnetTrainOptions(out="x", width=4), parent)  # the same width: fine
+    # the command line passes every option, so an unset --width arrives as an explicit None
+    _check_inherited_inputs(DsnetTrainOptions(out="x", width=None), parent)
     with pytest.raises(ConfigError, match=r"--width 6: the --init-from model .* has width 4; a fine-tune"):
         _check_inherited_inputs(DsnetTrainOptions(out="x", width=6), parent)

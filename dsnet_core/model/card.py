@@ -64,12 +64,28 @@ def _atomic_write_text(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+CARD_DIGEST = "card_sha256"
+"""The card's digest of itself: sha256 of its canonical JSON without this key (:func:`card_text`)."""
+
+
+def _digest(data: dict) -> str:
+    body = {k: v for k, v in data.items() if k != CARD_DIGEST}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def card_text(data: dict) -> str:
+    """A card's JSON text (any method's card), with its digest of itself (:data:`CARD_DIGEST`), so
+    that an edit that still parses (a class name, a metric, an import record) is found on read."""
+    body = {k: v for k, v in data.items() if k != CARD_DIGEST}
+    return json.dumps({**body, CARD_DIGEST: _digest(body)}, indent=2, sort_keys=True)
+
+
 def write_card(path: str | Path, card: ModelCard) -> None:
     """Write ``CKPT/card.json`` atomically, recording the sha256 of ``shift.safetensors`` if present."""
     path = Path(path)
     shift = path / SHIFT_WEIGHTS
     card.shift_sha256 = sha256_file(shift) if shift.is_file() else ""
-    _atomic_write_text(path / CARD, json.dumps(card.__dict__, indent=2, sort_keys=True))
+    _atomic_write_text(path / CARD, card_text(card.__dict__))
 
 
 def card_json(path: str | Path) -> dict:
@@ -102,6 +118,14 @@ def card_json(path: str | Path) -> dict:
         raise CheckpointError(card_path, f"model card is not valid JSON: {exc}") from exc
     if not isinstance(data, dict):
         raise CheckpointError(card_path, "model card is not a JSON object")
+    if CARD_DIGEST in data:  # cards written before the digest existed (the bundled ones) have none
+        recorded = data.pop(CARD_DIGEST)
+        if recorded != _digest(data):
+            raise CheckpointError(
+                card_path,
+                f"model card does not match its own sha256 (edited or damaged); if you edited it on "
+                f'purpose, delete its "{CARD_DIGEST}" entry',
+            )
     return data
 
 

@@ -6,7 +6,6 @@ Every card carries ``format``; :func:`dsnet_core.checkpoints.card_kind` tells th
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import torch
@@ -15,7 +14,7 @@ from safetensors.torch import load_file
 
 from dsnet_core.errors import CheckpointError, CheckpointMismatchError
 from dsnet_core.labels import LabelMap
-from dsnet_core.model.card import _atomic_write_text
+from dsnet_core.model.card import _atomic_write_text, card_text
 from dsnet_core.model.checkpoint import (
     CARD,
     WEIGHTS,
@@ -46,7 +45,7 @@ def save_most_checkpoint(path: str | Path, model: MostNet, card: ModelCard) -> P
     card.weights_sha256 = sha256_file(path / WEIGHTS)
     card.architecture = model.config.to_dict()
     card.code_version = card.code_version or code_version()
-    _atomic_write_text(path / CARD, json.dumps(card.__dict__, indent=2, sort_keys=True))
+    _atomic_write_text(path / CARD, card_text(card.__dict__))
     return path
 
 

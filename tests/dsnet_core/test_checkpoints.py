@@ -10,6 +10,7 @@ import pytest
 
 from dsnet_core.checkpoints import DPLS, DSNET, MOST, card_kind, checkpoint_digest, checkpoint_method
 from dsnet_core.errors import CheckpointError
+from dsnet_core.model.card import card_text
 from tasks.methods import METHODS
 from tests.model_helpers import make_checkpoint, make_most_checkpoint
 
@@ -38,6 +39,6 @@ def test_another_kinds_card_is_refused_with_its_method(tmp_path):
         DSNET.read_card(most)
     assert len({checkpoint_digest(ds), checkpoint_digest(most)}) == 2  # each read by its own kind
     card = json.loads((ds / "card.json").read_text())
-    (ds / "card.json").write_text(json.dumps({**card, "format": "other/1"}))
+    (ds / "card.json").write_text(card_text({**card, "format": "other/1"}))
     with pytest.raises(CheckpointError, match="unknown checkpoint format 'other/1'"):
         card_kind(ds)

@@ -9,6 +9,7 @@ import shutil
 import pytest
 from typer.testing import CliRunner
 
+from dsnet_core.model.card import card_text
 from flows.cli import app
 from tests.logs import make_log
 
@@ -103,7 +104,7 @@ def _card_copy(src, dst, change) -> str:
     shutil.copytree(src, dst)
     card = json.loads((dst / "card.json").read_text())
     change(card["architecture"])
-    (dst / "card.json").write_text(json.dumps(card))
+    (dst / "card.json").write_text(card_text(card))
     return str(dst / "card.json")
 
 

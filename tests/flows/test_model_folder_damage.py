@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from dsnet_core.errors import CheckpointError
+from dsnet_core.model.card import card_text
 from flows.cli import app
 from tests.dsnet_core.adapt.test_trainer import trainer, world  # noqa: F401 - world: a fixture
 from tests.helpers.tiny_log import write_tiny_log
@@ -102,7 +103,7 @@ def test_adapt_resume_names_the_folders_damaged_file_not_a_rounds_copy(log, tmp_
     out = make_checkpoint(tmp_path / "ad")
     card = json.loads((out / "card.json").read_text())
     card["training_data"]["adapt"] = {"method": "dsnet", "logs": [{"root": str(log.resolve())}], "rounds": []}
-    (out / "card.json").write_text(json.dumps(card))
+    (out / "card.json").write_text(card_text(card))
     data = bytearray((out / "shift.safetensors").read_bytes())
     data[-2] ^= 0x01
     (out / "shift.safetensors").write_bytes(bytes(data))

@@ -17,6 +17,7 @@ import torch
 from typer.testing import CliRunner
 
 from dsnet_core.errors import CheckpointError, CheckpointImportError
+from dsnet_core.model.card import card_text
 from dsnet_core.model.checkpoint import load_checkpoint, read_card, save_checkpoint
 from flows.cli import app
 from flows.commands.model_folder import LOCK, writing_folder
@@ -162,7 +163,7 @@ def test_train_resume_into_an_adaptation_or_import_is_refused(kind, logs, ck):
     """Finding: `train dsnet --resume` into an adapted checkpoint overwrote it with a card mixing both."""
     card = json.loads((ck / "card.json").read_text())
     card["training_data"][kind] = {"rounds": []} if kind == "adapt" else {"kind": "dsnet"}
-    (ck / "card.json").write_text(json.dumps(card))
+    (ck / "card.json").write_text(card_text(card))
     code, text = invoke("train", "dsnet", logs[0], "--out", ck, "--epochs", "semantic=2", *TRAIN, "--resume")
     assert code == 2, text
     want = (
@@ -185,7 +186,7 @@ def test_adapt_resume_of_a_finished_adaptation_with_other_logs_is_refused(logs, 
         "parent": {"path": str(parent.resolve())},
         "rounds": [],
     }
-    (out / "card.json").write_text(json.dumps(card))
+    (out / "card.json").write_text(card_text(card))
     code, text = invoke("adapt", logs[1], "--out", out, "--resume")
     assert code == 2, text
     assert (

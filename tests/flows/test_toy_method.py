@@ -19,6 +19,7 @@ from pydantic import Field
 from typer.testing import CliRunner
 
 from dsnet_core.labels import class_map_of, load_label_map
+from dsnet_core.model.card import card_text
 from dsnet_core.model.checkpoint import ModelCard, save_tensors
 from dsnet_core.train.skeleton import EpochPlan, TrainerSkeleton, prepare_out
 from storage.contract import ArraySpec, TableSpec
@@ -121,7 +122,7 @@ class ToyTrainer(TrainerSkeleton):
 
     def write_checkpoint(self, staging: Path, stage: str, extra: dict) -> None:
         save_tensors(self.model.state_dict(), staging / "model.safetensors")
-        (staging / "card.json").write_text(json.dumps(self.card.__dict__))
+        (staging / "card.json").write_text(card_text(self.card.__dict__))
 
 
 class Toy(Method):

@@ -20,6 +20,8 @@ import gpu_wheels  # noqa: E402
 from ckpt_parts import PartsError  # noqa: E402
 from gpu_wheels import WheelError  # noqa: E402
 
+from dsnet_core.model.card import card_text  # noqa: E402
+
 
 def fake_wheel(folder: Path, name: str, version: str, requires=(), tag="py3-none-any", files=None) -> Path:
     """A minimal wheel: ``files`` (path → text, default one module) and its METADATA."""
@@ -202,7 +204,7 @@ def test_unpacking_without_pip_puts_data_libraries_on_top(tmp_path):
 def checkpoint(tmp_path) -> Path:
     folder = tmp_path / "ckpt"
     folder.mkdir()
-    (folder / "card.json").write_text(json.dumps({"epochs": {"semantic": 1}}))
+    (folder / "card.json").write_text(card_text({"epochs": {"semantic": 1}}))
     (folder / "metrics.csv").write_text("stage,epoch\nsemantic,1\n")
     (folder / "model.safetensors").write_bytes(bytes(range(256)) * 160)  # 40 KiB
     (folder / "train_state.safetensors").write_bytes(b"\x07" * 30_000)

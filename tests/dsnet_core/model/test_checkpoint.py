@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from dsnet_core.labels import load_label_map
+from dsnet_core.model.card import card_text
 from dsnet_core.model.checkpoint import (
     CheckpointError,
     CheckpointMismatchError,
@@ -89,7 +90,7 @@ def test_card_architecture_edited_to_another_shape_fails(ckpt):
     path, _ = ckpt
     data = json.loads((path / "card.json").read_text())
     data["architecture"]["width"] = 3
-    (path / "card.json").write_text(json.dumps(data))
+    (path / "card.json").write_text(card_text(data))
     with pytest.raises(CheckpointMismatchError, match="do not fit the card's architecture"):
         load_checkpoint(path)
 
@@ -161,11 +162,31 @@ def test_card_with_a_malformed_class_map_or_architecture_names_the_card(ckpt):
     data = json.loads(json.dumps(good))
     key = next(iter(data["class_map"]["learning_map_inv"]))
     data["class_map"]["learning_map_inv"][")"] = data["class_map"]["learning_map_inv"].pop(key)
-    (path / "card.json").write_text(json.dumps(data))
+    (path / "card.json").write_text(card_text(data))
     with pytest.raises(CheckpointError, match=r"card.json: model card class map is incomplete or malformed"):
         read_card(path)
     data = json.loads(json.dumps(good))
     data["architecture"]["grid"] = "not a grid"
-    (path / "card.json").write_text(json.dumps(data))
+    (path / "card.json").write_text(card_text(data))
     with pytest.raises(CheckpointError, match=r"card.json: model card architecture is malformed"):
         read_card(path)
+
+
+def test_an_edit_that_still_parses_is_refused_by_the_cards_own_digest(ckpt):
+    """Found by the model-folder fuzz (issue 40): a flipped bit in card.json that left valid JSON (a
+    class name, a metric, the import record) was read without a word."""
+    from dsnet_core.model.card import CARD_DIGEST, card_json
+
+    path, _ = ckpt
+    text = (path / "card.json").read_text()
+    data = json.loads(text)
+    assert len(data[CARD_DIGEST]) == 64
+    assert CARD_DIGEST not in card_json(path)  # the reader hands out the card without it
+    (path / "card.json").write_text(text.replace('"miou": 0.5', '"miou": 0.7'))
+    with pytest.raises(CheckpointError, match=r"card\.json: model card does not match its own sha256") as err:
+        read_card(path)
+    assert f'delete its "{CARD_DIGEST}" entry' in str(err.value) and "\n" not in str(err.value)
+    data.pop(CARD_DIGEST)  # a card written before the digest existed (the bundled ones) reads as it is
+    data["metrics"][0]["miou"] = 0.7
+    (path / "card.json").write_text(json.dumps(data))
+    assert read_card(path).metrics[0]["miou"] == 0.7

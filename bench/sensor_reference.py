@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 
 from dsnet_core.model.checkpoint import read_card, write_card
-from dsnet_core.train.data import training_reference
+from dsnet_core.train.data import probe_statistics
 from dsnet_core.train.finetune import volume_name
 from dsnet_core.train.stream import StreamLog, StreamOptions
 
@@ -35,7 +35,7 @@ def main(paths: list[str]) -> None:
         names = log.probe()
         if [volume_name(v) for v in log.volumes(names)] != data["frames"]:
             raise SystemExit(f"{path}: its probe frames are not the stream's probe window")
-        data["sensor_reference"] = training_reference(log, log.volumes(names))
+        data["sensor_reference"] = probe_statistics(log, log.volumes(names), log.label_map)[1]
         card.training_data = data
         write_card(path, card)
         ref = data["sensor_reference"]

@@ -113,29 +113,44 @@ def class_counts(reader: LogReader, volumes: list[list[FrameRef]], label_map: La
     """Points per train id ``(C,) int64`` over the reference scans of ``volumes``."""
     counts = np.zeros(label_map.num_classes, np.int64)
     for refs in volumes:
-        label = reader.labels(refs[-1])
-        if label is not None:
-            counts += np.bincount(label_map.to_train(label & 0xFFFF), minlength=label_map.num_classes)
+        _count(counts, reader.labels(refs[-1]), label_map)
     return counts
+
+
+def _count(counts: np.ndarray, label: np.ndarray | None, label_map: LabelMap) -> None:
+    """Add one scan's points per train id (``label``: raw uint32 ``(N,)`` or None) to ``counts``."""
+    if label is not None:
+        counts += np.bincount(label_map.to_train(label & 0xFFFF), minlength=label_map.num_classes)
 
 
 REFERENCE_SCANS = 32
 """At most this many training scans (evenly spaced over the volumes) make a card's sensor reference."""
 
 
-def training_reference(reader: LogReader, volumes: list[list[FrameRef]]) -> dict | None:
-    """The card's ``sensor_reference`` (:func:`dsnet_core.model.sensor_match.reference_of`) over the
-    reference scans of at most :data:`REFERENCE_SCANS` of ``volumes``; None when they have no
-    ground near the sensor."""
+def probe_statistics(
+    reader: LogReader, volumes: list[list[FrameRef]], label_map: LabelMap
+) -> tuple[np.ndarray, dict | None]:
+    """What a new card records of its training scans, in one pass over them (a stream renders each
+    sample once: its labels and its scan are read together): :func:`class_counts` ``(C,) int64`` and
+    the ``sensor_reference`` (:func:`dsnet_core.model.sensor_match.reference_of`) over the reference
+    scans of at most :data:`REFERENCE_SCANS` of ``volumes`` evenly spaced (None when they have no
+    ground near the sensor)."""
     from dsnet_core.model.sensor_match import reference_of
 
-    if not volumes:
-        return None
-    pick = np.unique(np.linspace(0, len(volumes) - 1, min(REFERENCE_SCANS, len(volumes))).round().astype(int))
+    pick = set(
+        np.linspace(0, len(volumes) - 1, min(REFERENCE_SCANS, len(volumes))).round().astype(int).tolist()
+    )
+    counts = np.zeros(label_map.num_classes, np.int64)
+    scans = []
+    for i, refs in enumerate(volumes):
+        _count(counts, reader.labels(refs[-1]), label_map)
+        if i in pick:
+            scans.append(reader.scan(refs[-1]))
     try:
-        return reference_of(reader.scan(volumes[i][-1]) for i in pick).to_dict()
+        reference = reference_of(scans).to_dict() if scans else None
     except ValueError:
-        return None
+        reference = None
+    return counts, reference
 
 
 def data_fingerprint(reader: LogReader, volumes: list[list[FrameRef]]) -> str:

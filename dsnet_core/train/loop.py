@@ -45,10 +45,9 @@ from dsnet_core.train import distributed
 from dsnet_core.train.data import (
     Sample,
     augment,
-    class_counts,
     data_fingerprint,
     load_sample,
-    training_reference,
+    probe_statistics,
     volume_refs,
 )
 from dsnet_core.train.finetune import early_stop, holdout_split, stage_start, volume_name
@@ -285,11 +284,10 @@ class Trainer(TrainerSkeleton):
     def _new_card(self, sequences: list[str], val_sequences: list[str], source: dict | None) -> ModelCard:
         """The card of a new run: the data it trains and validates on and where it started."""
         reader, stream = self.reader, isinstance(self.reader, StreamLog)
-        counts, fingerprint, reference = self.dist.from_main(  # every training file read once, on rank 0
+        (counts, reference), fingerprint = self.dist.from_main(  # every training file read once, on rank 0
             lambda: (
-                class_counts(reader, self.train_vols, self.label_map),
+                probe_statistics(reader, self.train_vols, self.label_map),
                 reader.fingerprint() if stream else data_fingerprint(reader, self.train_vols),
-                training_reference(reader, self.train_vols),
             )
         )
         return ModelCard(
